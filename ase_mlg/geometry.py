@@ -1,0 +1,203 @@
+"""Cells, periodic boundaries and the shape of the grid a scene needs.
+
+The MLG orders atoms by *grid coordinates* ``g = f * h``: fractional
+coordinates ``f`` of the (completed) cell scaled by the cell heights ``h``
+(distance between opposite faces, Å).  For an orthorhombic cell aligned with
+the axes ``g`` is the Cartesian position; for a triclinic cell the monotone
+order lives in fractional space while every distance is Cartesian
+(DESIGN 2.3).  Along a periodic axis the coordinate is wrapped into one period
+``[origin, origin + h)``, the origin sitting in the widest empty gap so that a
+slab with vacuum is not cut through the middle.
+
+Nothing here knows about ASE ``Atoms``: positions, cell and pbc come in as
+arrays, so the grid can be used from any code.
+"""
+
+import numpy as np
+
+__all__ = ["Box", "as_positions", "grid_shape"]
+
+
+def as_positions(positions, name="positions"):
+    """Return ``positions`` as a C-contiguous float64 ``(N, 3)`` array.
+
+    Raises
+    ------
+    TypeError
+        If the array is not numeric.
+    ValueError
+        If the shape is not ``(N, 3)`` or an entry is NaN/inf (the message
+        names the first offending atom).
+    """
+    arr = np.asarray(positions)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number)
+                                   or arr.dtype == bool):
+        raise TypeError(f"{name}: expected a numeric array, got dtype {arr.dtype}")
+    if np.iscomplexobj(arr):
+        raise TypeError(f"{name}: complex coordinates are not allowed")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        if arr.size == 0 and arr.ndim <= 2:
+            return np.zeros((0, 3))
+        raise ValueError(f"{name}: expected shape (N, 3), got {arr.shape}")
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        idx = np.flatnonzero(bad)
+        raise ValueError(f"{name}: non-finite (NaN/inf) coordinates for atom(s) "
+                         f"{idx[:10].tolist()}{' ...' if len(idx) > 10 else ''}")
+    return arr
+
+
+class Box:
+    """A cell with periodic boundary conditions.
+
+    Parameters
+    ----------
+    cell : array_like, shape (3, 3) or (3,) or None
+        Cell vectors as rows (Å).  Zero vectors are allowed on non-periodic
+        axes (as in ASE); they are completed by unit vectors orthogonal to the
+        others so that fractional coordinates always exist.
+    pbc : bool or sequence of 3 bool
+        Periodic axes.
+
+    Raises
+    ------
+    ValueError
+        If the cell has the wrong shape, is non-finite, or a periodic axis
+        has no volume (zero vector, or cell vectors linearly dependent).
+    """
+
+    def __init__(self, cell=None, pbc=False):
+        pbc = np.broadcast_to(np.asarray(pbc, dtype=bool), (3,)).copy()
+        if cell is None:
+            cell = np.zeros((3, 3))
+        cell = np.asarray(cell, dtype=np.float64)
+        if cell.shape == (3,):
+            cell = np.diag(cell)
+        if cell.shape != (3, 3):
+            raise ValueError(f"cell: expected shape (3, 3) or (3,), got {cell.shape}")
+        if not np.isfinite(cell).all():
+            raise ValueError("cell: contains NaN or inf")
+        self.cell = np.ascontiguousarray(cell)
+        self.pbc = pbc
+        self.full = _complete_cell(self.cell, pbc)
+        self.volume = abs(np.linalg.det(self.full))
+        self.inverse = np.ascontiguousarray(np.linalg.inv(self.full))
+        # height of the cell along each axis: volume / area of the opposite face
+        # (= 1 / |reciprocal vector|); the grid coordinate of axis a is f_a * h_a.
+        self.heights = 1.0 / np.linalg.norm(self.inverse, axis=0)
+
+    def fractional(self, positions):
+        """Fractional coordinates of ``positions`` (not wrapped)."""
+        return positions @ self.inverse
+
+    def same_as(self, other):
+        return (np.array_equal(self.cell, other.cell)
+                and np.array_equal(self.pbc, other.pbc))
+
+    def __repr__(self):
+        return f"Box(cell={self.cell.tolist()}, pbc={self.pbc.tolist()})"
+
+
+def _complete_cell(cell, pbc):
+    """Replace missing (zero) vectors of non-periodic axes by orthonormal ones."""
+    full = cell.copy()
+    lengths = np.linalg.norm(cell, axis=1)
+    scale = max(lengths.max(), 1.0)
+    for a in range(3):
+        if pbc[a] and lengths[a] <= 1e-12 * scale:
+            raise ValueError(f"cell: periodic axis {a} has a zero cell vector "
+                             "(zero-volume periodic cell)")
+    missing = [a for a in range(3) if lengths[a] <= 1e-12 * scale]
+    present = [a for a in range(3) if a not in missing]
+    if len(missing) == 3:
+        return np.eye(3)
+    if len(missing) == 2:
+        v = full[present[0]] / lengths[present[0]]
+        # two unit vectors orthogonal to v
+        trial = np.eye(3)[np.argmin(np.abs(v))]
+        u = np.cross(v, trial)
+        u /= np.linalg.norm(u)
+        w = np.cross(v, u)
+        full[missing[0]], full[missing[1]] = u, w
+    elif len(missing) == 1:
+        u = np.cross(full[present[0]], full[present[1]])
+        n = np.linalg.norm(u)
+        if n > 1e-12 * scale ** 2:
+            full[missing[0]] = u / n
+    # keep a right-handed-or-not cell as given; only check it has a volume
+    det = np.linalg.det(full)
+    if not abs(det) > 1e-9 * np.prod(np.maximum(np.linalg.norm(full, axis=1), 1e-300)):
+        which = [a for a in range(3) if pbc[a]]
+        raise ValueError("cell: the cell vectors are linearly dependent "
+                         f"(zero-volume cell; periodic axes {which})")
+    if len(missing) == 1 and np.dot(np.cross(full[(missing[0] + 1) % 3],
+                                             full[(missing[0] + 2) % 3]),
+                                    full[missing[0]]) < 0:
+        full[missing[0]] *= -1.0
+    return full
+
+
+def wrap_origins(frac, pbc):
+    """Per periodic axis, the fractional origin of the wrap: the middle of the
+    widest empty gap when more than a quarter of the period is empty (a slab
+    with vacuum), else 0 (a filled box keeps its own faces)."""
+    origin = np.zeros(3)
+    if len(frac) < 2:
+        return origin
+    for a in range(3):
+        if not pbc[a]:
+            continue
+        f = np.sort(frac[:, a] - np.floor(frac[:, a]))
+        gaps = np.diff(np.concatenate([f, [f[0] + 1.0]]))
+        k = int(np.argmax(gaps))
+        if gaps[k] > 0.25:
+            origin[a] = (f[k] + 0.5 * gaps[k]) % 1.0
+    return origin
+
+
+def grid_shape(extent, periodic, natoms):
+    """Shape ``(NX, NY, NZ)`` of a grid for ``natoms`` atoms spread over
+    ``extent`` (Å, occupied extent per axis).
+
+    Along axis a a grid with spacing d has about ``e_a / d`` layers on a
+    periodic axis and ``e_a / d + 1`` on an open one (the end layers sit on
+    the extremes).  We solve ``prod(layers) = natoms`` for d, round, and fix
+    up so that ``NX*NY*NZ >= natoms`` with as few holes as rounding allows.
+    A monolayer has ``e_z = 0`` and so gets NZ = 1, a chain NY = NZ = 1
+    (DESIGN 2.3).
+    """
+    n = int(natoms)
+    if n <= 1:
+        return (n, n, n)
+    extent = np.asarray(extent, dtype=np.float64)
+    c = np.where(periodic, 0.0, 1.0)
+    if not (extent > 0).any():
+        # all atoms at one point: no geometry to follow, use a cube
+        m = int(np.ceil(n ** (1 / 3) - 1e-9))
+        layers = np.array([m, m, m], dtype=float)
+    else:
+        def count(d):
+            return np.prod(extent / d + c)
+        lo, hi = 1e-12 * extent.max(), 10.0 * extent.max()
+        for _ in range(200):  # bisection in log space: count(d) is decreasing
+            mid = np.sqrt(lo * hi)
+            if count(mid) > n:
+                lo = mid
+            else:
+                hi = mid
+        layers = extent / hi + c
+    shape = np.maximum(1, np.rint(layers)).astype(np.int64)
+    layers = np.maximum(layers, 1e-300)
+    while np.prod(shape) < n:
+        a = int(np.argmax(layers / shape))
+        shape[a] += 1
+    changed = True
+    while changed:
+        changed = False
+        for a in np.argsort(layers / shape):
+            if shape[a] > 1 and np.prod(shape) // shape[a] * (shape[a] - 1) >= n:
+                shape[a] -= 1
+                changed = True
+                break
+    return tuple(int(s) for s in shape)

@@ -1,0 +1,712 @@
+"""The Monotonic Logical Grid: construction, maintenance, invariants.
+
+N atoms live on the sites ``(i, j, k)`` of an ``(NX, NY, NZ)`` array so that
+(Boris 1985, eq. 3.1)::
+
+    X[i,j,k] <= X[i+1,j,k],  Y[i,j,k] <= Y[i,j+1,k],  Z[i,j,k] <= Z[i,j,k+1]
+
+on the grid coordinates of :mod:`ase_mlg.geometry`.  Sites without an atom
+are *holes*: they carry coordinates that respect the inequalities and never
+interact.
+
+Construction (DESIGN 2.1) is one recursive split, parameterised by the rule
+that picks the axis:
+
+* ``method="kd"`` (default): split the site box along its longest logical
+  axis at the middle index and send the matching fraction of atoms (by that
+  coordinate) to each half.  Local quality does not degrade with N.
+* ``method="sort"``: split z first until every box is one plane, then y,
+  then x.  Proportional binary splits of a z-sorted set *are* Boris's sort
+  construction (sort into NZ planes, each plane by y into rows, each row by
+  x, Boris 1985 sec. III), so the seed's baseline costs no second kernel.
+
+Holes are distributed proportionally (every split sends the same fraction of
+sites and atoms each way) and sit at the centre of their leaf's region, which
+lies between the split values, so the order holds for them too.
+
+Maintenance (DESIGN 2.2, Boris 1985 sec. III): after atoms move, odd-even
+swap sweeps along every line of every axis restore the order; each swap
+strictly lowers sum(i*X + j*Y + k*Z), so the sweeps terminate.  A cap on
+sweeps falls back to a rebuild.
+
+Periodic axes (DESIGN 2.4) -- the choice made here
+---------------------------------------------------
+A periodic line is *cyclic*: the site after ``NX-1`` is ``0`` one period
+further on, and the order includes the seam condition
+``X[NX-1] <= X[0] + L``.  Stored coordinates are continuous in time: on
+``update`` each site's coordinate moves by the minimum-image displacement of
+its atom, so an atom crossing a periodic face does **not** jump from one end
+of its line to the other (that would cost O(NX) swaps); it simply carries a
+coordinate beyond the face.  When it overtakes the first atom's image, a seam
+swap exchanges the two and shifts their stored coordinates by one period,
+which keeps every line's window exactly one period wide.  Each line's window
+(its *phase*) then follows the centre of mass of its atoms, which wanders
+slowly; a cheap monitor compares phases of neighbouring lines every
+``monitor_every`` updates and rebuilds when two lines are out of register by
+more than ``max_phase_lag`` spacings.  ``validation/periodic_drift.py``
+measures sweeps per step and template quality over long periodic runs.
+"""
+
+import numpy as np
+from numba import njit, prange
+
+from .geometry import Box, as_positions, grid_shape, wrap_origins
+
+__all__ = ["MLG", "half_template", "template_pairs"]
+
+KD, SORT = 0, 1
+_METHODS = {"kd": KD, "sort": SORT}
+
+
+# --------------------------------------------------------------------------
+# construction
+# --------------------------------------------------------------------------
+
+@njit(cache=True)
+def _select(perm, a0, a1, target, g, axis):
+    """Reorder perm[a0:a1] so that keys before ``target`` are <= keys from
+    ``target`` on (nth-element, Hoare partition, median-of-three pivot:
+    linear on average and safe with many equal keys)."""
+    lo = a0
+    hi = a1 - 1
+    while hi > lo:
+        mid = (lo + hi) // 2
+        x, y, z = g[perm[lo], axis], g[perm[mid], axis], g[perm[hi], axis]
+        pivot = max(min(x, y), min(max(x, y), z))
+        i = lo
+        j = hi
+        while i <= j:
+            while g[perm[i], axis] < pivot:
+                i += 1
+            while g[perm[j], axis] > pivot:
+                j -= 1
+            if i <= j:
+                t = perm[i]
+                perm[i] = perm[j]
+                perm[j] = t
+                i += 1
+                j -= 1
+        if target <= j:
+            hi = j
+        elif target >= i:
+            lo = i
+        else:
+            break
+
+
+@njit(cache=True)
+def _build(g, nx, ny, nz, lo0, hi0, method):
+    """Recursive-split construction (see module docstring).
+
+    Returns ``sites`` (flat, -1 for holes) and ``coords`` (flat sites x 3).
+    """
+    n = g.shape[0]
+    nsite = nx * ny * nz
+    sites = np.full(nsite, -1, dtype=np.int64)
+    coords = np.empty((nsite, 3))
+    perm = np.arange(n)
+    # explicit DFS stack: box (6 ints) + atom range (2 ints), bounds (6 floats)
+    cap = 256
+    ibox = np.empty((cap, 8), dtype=np.int64)
+    fbox = np.empty((cap, 6))
+    ibox[0, 0], ibox[0, 1], ibox[0, 2] = 0, 0, 0
+    ibox[0, 3], ibox[0, 4], ibox[0, 5] = nx, ny, nz
+    ibox[0, 6], ibox[0, 7] = 0, n
+    for a in range(3):
+        fbox[0, a] = lo0[a]
+        fbox[0, 3 + a] = hi0[a]
+    top = 1
+    if nsite == 0:
+        top = 0
+    lengths = np.empty(3, dtype=np.int64)
+    while top > 0:
+        top -= 1
+        b = ibox[top].copy()
+        f = fbox[top].copy()
+        for a in range(3):
+            lengths[a] = b[3 + a] - b[a]
+        ns = lengths[0] * lengths[1] * lengths[2]
+        a0, a1 = b[6], b[7]
+        m = a1 - a0
+        if ns == 1:
+            s = (b[0] * ny + b[1]) * nz + b[2]
+            if m == 1:
+                sites[s] = perm[a0]
+                for a in range(3):
+                    coords[s, a] = g[perm[a0], a]
+            else:  # a hole: the centre of its leaf's region
+                for a in range(3):
+                    coords[s, a] = 0.5 * (f[a] + f[3 + a])
+            continue
+        # pick the axis to split
+        axis = 0
+        if method == KD:
+            best = -1.0
+            for a in range(3):
+                # longest logical axis; ties go to the larger physical extent
+                key = lengths[a] + 1e-9 * min(f[3 + a] - f[a], 1e8) / 1e8
+                if lengths[a] > 1 and key > best:
+                    best = key
+                    axis = a
+        else:  # Boris's order: planes (z), then rows (y), then x
+            axis = 2 if lengths[2] > 1 else (1 if lengths[1] > 1 else 0)
+        c0 = b[axis]
+        c1 = b[3 + axis]
+        cmid = c0 + (c1 - c0) // 2
+        nleft = ns // lengths[axis] * (cmid - c0)
+        nright = ns - nleft
+        ml = (m * nleft + ns // 2) // ns  # proportional share of atoms
+        ml = max(m - nright, min(nleft, ml))
+        lo, hi = f[axis], f[3 + axis]
+        prop = lo + (hi - lo) * nleft / ns
+        if 0 < ml < m:
+            _select(perm, a0, a1, a0 + ml, g, axis)
+            maxl = g[perm[a0], axis]
+            for t in range(a0 + 1, a0 + ml):
+                maxl = max(maxl, g[perm[t], axis])
+            minr = g[perm[a0 + ml], axis]
+            for t in range(a0 + ml + 1, a1):
+                minr = min(minr, g[perm[t], axis])
+            split = 0.5 * (maxl + minr)
+            split = min(max(split, maxl), minr)  # guard rounding
+        elif ml == 0 and m > 0:
+            minr = g[perm[a0], axis]
+            for t in range(a0 + 1, a1):
+                minr = min(minr, g[perm[t], axis])
+            split = min(prop, minr)
+        elif ml == m and m > 0:
+            maxl = g[perm[a0], axis]
+            for t in range(a0 + 1, a1):
+                maxl = max(maxl, g[perm[t], axis])
+            split = max(prop, maxl)
+        else:
+            split = prop
+        if top + 2 > cap:
+            raise RuntimeError("MLG construction stack overflow")
+        # right half
+        ibox[top] = b
+        ibox[top, axis] = cmid
+        ibox[top, 6] = a0 + ml
+        fbox[top] = f
+        fbox[top, axis] = split
+        top += 1
+        # left half
+        ibox[top] = b
+        ibox[top, 3 + axis] = cmid
+        ibox[top, 7] = a0 + ml
+        fbox[top] = f
+        fbox[top, 3 + axis] = split
+        top += 1
+    return sites, coords
+
+
+# --------------------------------------------------------------------------
+# maintenance: odd-even swap sweeps (Boris 1985 sec. III)
+# --------------------------------------------------------------------------
+
+@njit(cache=True, parallel=True)
+def _phase(sites, coords, n, stride, axis, parity):
+    """One odd or even phase along one axis: compare sites (s, s+stride) for
+    line index i = parity, parity+2, ...; the pairs are disjoint, so the
+    phase runs in parallel and gives the serial answer."""
+    npair = (n - parity) // 2
+    nouter = sites.size // (n * stride)
+    swaps = 0
+    for t in prange(nouter * npair):
+        o = t // npair
+        i = parity + 2 * (t % npair)
+        base = (o * n + i) * stride
+        for inner in range(stride):
+            s = base + inner
+            u = s + stride
+            if coords[s, axis] > coords[u, axis]:
+                a = sites[s]
+                sites[s] = sites[u]
+                sites[u] = a
+                for c in range(3):
+                    x = coords[s, c]
+                    coords[s, c] = coords[u, c]
+                    coords[u, c] = x
+                swaps += 1
+    return swaps
+
+
+@njit(cache=True, parallel=True)
+def _seam(sites, coords, n, stride, axis, period):
+    """The periodic seam of every line: site n-1 precedes site 0 of the next
+    period.  A swap exchanges the two and shifts their stored coordinates by
+    one period, so both stay continuous in space."""
+    nouter = sites.size // (n * stride)
+    swaps = 0
+    for t in prange(nouter * stride):
+        o = t // stride
+        inner = t % stride
+        first = o * n * stride + inner
+        last = first + (n - 1) * stride
+        if coords[last, axis] > coords[first, axis] + period:
+            a = sites[first]
+            sites[first] = sites[last]
+            sites[last] = a
+            for c in range(3):
+                x = coords[first, c]
+                coords[first, c] = coords[last, c]
+                coords[last, c] = x
+            coords[first, axis] -= period
+            coords[last, axis] += period
+            swaps += 1
+    return swaps
+
+
+@njit(cache=True)
+def _sweeps(sites, coords, shape, periods, cap):
+    """Swap sweeps until a full sweep makes no swap, or ``cap`` sweeps.
+
+    Returns (sweeps that swapped, total swaps, converged).
+    """
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    nsweep = 0
+    nswap = 0
+    while True:
+        swaps = 0
+        for axis in range(3):
+            n = shape[axis]
+            if n < 2:
+                continue
+            swaps += _phase(sites, coords, n, strides[axis], axis, 0)
+            swaps += _phase(sites, coords, n, strides[axis], axis, 1)
+            if periods[axis] > 0.0:
+                swaps += _seam(sites, coords, n, strides[axis], axis, periods[axis])
+        if swaps == 0:
+            return nsweep, nswap, True
+        nsweep += 1
+        nswap += swaps
+        if nsweep >= cap:
+            return nsweep, nswap, False
+
+
+@njit(cache=True)
+def _monotone(coords, shape, periods):
+    """Check eq. 3.1 (plus the seam condition on periodic axes)."""
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    c = coords.reshape((nx, ny, nz, 3))
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if i + 1 < nx and c[i, j, k, 0] > c[i + 1, j, k, 0]:
+                    return False
+                if j + 1 < ny and c[i, j, k, 1] > c[i, j + 1, k, 1]:
+                    return False
+                if k + 1 < nz and c[i, j, k, 2] > c[i, j, k + 1, 2]:
+                    return False
+    for axis in range(3):
+        n = shape[axis]
+        if periods[axis] > 0.0 and n > 1:
+            for i in range(nx):
+                for j in range(ny):
+                    for k in range(nz):
+                        idx = (i, j, k)[axis]
+                        if idx != n - 1:
+                            continue
+                        if axis == 0:
+                            first = c[0, j, k, 0]
+                        elif axis == 1:
+                            first = c[i, 0, k, 1]
+                        else:
+                            first = c[i, j, 0, 2]
+                        if c[i, j, k, axis] > first + periods[axis]:
+                            return False
+    return True
+
+
+@njit(cache=True, parallel=True)
+def _follow(sites, coords, g_new, periods):
+    """Move each site's stored coordinate by its atom's displacement, taking
+    the minimum image on periodic axes so stored coordinates stay continuous
+    (an atom crossing a periodic face keeps going instead of jumping)."""
+    for s in prange(sites.size):
+        a = sites[s]
+        if a < 0:
+            continue
+        for c in range(3):
+            d = g_new[a, c] - coords[s, c]
+            if periods[c] > 0.0:
+                d -= periods[c] * np.rint(d / periods[c])
+            coords[s, c] += d
+
+
+# --------------------------------------------------------------------------
+# Boris's template (DESIGN 2.6)
+# --------------------------------------------------------------------------
+
+def half_template(width, shape, pbc):
+    """Offsets of the half template of odd ``width`` W on a grid of ``shape``.
+
+    Returns ``(offsets, self_inverse)``: an ``(M, 3)`` int array with one of
+    every pair ``{d, -d}`` (M = (W^3 - 1)/2 on a large grid: 13, 62, 171 for
+    W = 3, 5, 7, Boris 1985 eq. 3.6) and a bool array marking offsets equal
+    to their own negation modulo a short periodic axis (both ends then visit
+    the pair with the same offset; the kernel keeps it once).
+
+    On a periodic axis shorter than W, the offsets are one full set of
+    residues so that no site is visited twice.
+    """
+    if width < 1 or width % 2 == 0:
+        raise ValueError(f"template: width must be an odd positive int, got {width}")
+    h = width // 2
+    ranges, canon = [], []
+    for a in range(3):
+        n = max(int(shape[a]), 1)
+        if pbc[a] and 2 * h + 1 > n:
+            lo = -((n - 1) // 2)
+            ranges.append(np.arange(lo, lo + n))
+            canon.append(lambda x, n=n, lo=lo: (x - lo) % n + lo)
+        else:
+            ranges.append(np.arange(-h, h + 1))
+            canon.append(lambda x: x)
+    grid = np.stack(np.meshgrid(*ranges, indexing="ij"), -1).reshape(-1, 3)
+    neg = np.stack([canon[a](-grid[:, a]) for a in range(3)], -1)
+    # keep d if d > -d lexicographically, or d == -d (self-inverse, not zero)
+    key = lambda v: (v[:, 0] * 4096 + v[:, 1]) * 4096 + v[:, 2]
+    kd, kn = key(grid), key(neg)
+    nonzero = (grid != 0).any(axis=1)
+    keep = nonzero & (kd >= kn)
+    return (np.ascontiguousarray(grid[keep], dtype=np.int64),
+            np.ascontiguousarray((kd == kn)[keep]))
+
+
+@njit(cache=True, parallel=True)
+def _template_scan(sites, shape, pbc, offsets, selfinv, positions, frac,
+                   cell, cutoff, counts, out_i, out_j, out_S, out_D, start,
+                   fill):
+    """For every site, walk the half template and keep pairs with d < cutoff
+    (minimum image on periodic axes).  Run twice: ``fill=False`` counts pairs
+    per site, ``fill=True`` writes them at ``start[s]``; the output order is
+    fixed by the site order, so the parallel and serial runs agree."""
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    rc2 = cutoff * cutoff
+    for s in prange(sites.size):
+        a = sites[s]
+        if a < 0:
+            continue
+        i = s // (ny * nz)
+        j = (s // nz) % ny
+        k = s % nz
+        pos = start[s] if fill else 0
+        cnt = 0
+        for o in range(offsets.shape[0]):
+            ti = i + offsets[o, 0]
+            tj = j + offsets[o, 1]
+            tk = k + offsets[o, 2]
+            if pbc[0]:
+                ti %= nx
+            elif ti < 0 or ti >= nx:
+                continue
+            if pbc[1]:
+                tj %= ny
+            elif tj < 0 or tj >= ny:
+                continue
+            if pbc[2]:
+                tk %= nz
+            elif tk < 0 or tk >= nz:
+                continue
+            t = (ti * ny + tj) * nz + tk
+            b = sites[t]
+            if b < 0 or (selfinv[o] and t <= s):
+                continue
+            S0 = 0.0
+            S1 = 0.0
+            S2 = 0.0
+            if pbc[0]:
+                S0 = -np.rint(frac[b, 0] - frac[a, 0])
+            if pbc[1]:
+                S1 = -np.rint(frac[b, 1] - frac[a, 1])
+            if pbc[2]:
+                S2 = -np.rint(frac[b, 2] - frac[a, 2])
+            dx = positions[b, 0] - positions[a, 0] + S0 * cell[0, 0] + S1 * cell[1, 0] + S2 * cell[2, 0]
+            dy = positions[b, 1] - positions[a, 1] + S0 * cell[0, 1] + S1 * cell[1, 1] + S2 * cell[2, 1]
+            dz = positions[b, 2] - positions[a, 2] + S0 * cell[0, 2] + S1 * cell[1, 2] + S2 * cell[2, 2]
+            r2 = dx * dx + dy * dy + dz * dz
+            if r2 >= rc2:
+                continue
+            if fill:
+                out_i[pos] = a
+                out_j[pos] = b
+                out_S[pos, 0] = int(S0)
+                out_S[pos, 1] = int(S1)
+                out_S[pos, 2] = int(S2)
+                out_D[pos, 0] = dx
+                out_D[pos, 1] = dy
+                out_D[pos, 2] = dz
+                pos += 1
+            cnt += 1
+        if not fill:
+            counts[s] = cnt
+
+
+def template_pairs(grid, width, cutoff):
+    """Pairs within ``cutoff`` found in the W x W x W half template.
+
+    Each unordered pair is reported at most once, with the minimum image on
+    periodic axes (template mode sees one image per pair: use the exact
+    query when the cutoff exceeds half a cell height).
+
+    Parameters
+    ----------
+    grid : MLG
+    width : int
+        Odd template width W (3, 5, 7, ...).
+    cutoff : float
+        Cutoff radius (Å); pairs with ``d < cutoff`` are kept.
+
+    Returns
+    -------
+    i, j : int64 arrays
+        Atom indices of each pair.
+    S : int64 array (M, 3)
+        Cell shift: ``D = positions[j] - positions[i] + S @ cell``.
+    D : float64 array (M, 3)
+        Distance vectors (Å).
+    """
+    cutoff = float(cutoff)
+    if not np.isfinite(cutoff) or cutoff < 0:
+        raise ValueError(f"cutoff: must be finite and >= 0, got {cutoff}")
+    offsets, selfinv = half_template(width, grid.shape, grid.box.pbc)
+    shape = np.array(grid.shape, dtype=np.int64)
+    sites = grid.sites.reshape(-1)
+    pbc = grid.box.pbc.copy()
+    frac = grid.box.fractional(grid.positions)
+    counts = np.zeros(sites.size, dtype=np.int64)
+    e_i = np.empty(0, np.int64)
+    e_S = np.empty((0, 3), np.int64)
+    e_D = np.empty((0, 3))
+    args = (sites, shape, pbc, offsets, selfinv, grid.positions, frac,
+            grid.box.cell, cutoff)
+    _template_scan(*args, counts, e_i, e_i, e_S, e_D, counts, False)
+    start = np.zeros(sites.size, dtype=np.int64)
+    np.cumsum(counts[:-1], out=start[1:])
+    m = int(counts.sum())
+    i = np.empty(m, np.int64)
+    j = np.empty(m, np.int64)
+    S = np.empty((m, 3), np.int64)
+    D = np.empty((m, 3))
+    _template_scan(*args, counts, i, j, S, D, start, True)
+    return i, j, S, D
+
+
+# --------------------------------------------------------------------------
+# the grid object
+# --------------------------------------------------------------------------
+
+class MLG:
+    """A Monotonic Logical Grid of atoms (Boris 1985).
+
+    Parameters
+    ----------
+    positions : array_like, shape (N, 3)
+        Cartesian positions (Å).  Any float dtype or memory layout; computed
+        in float64.
+    cell : array_like, shape (3, 3), optional
+        Cell vectors as rows (Å).  May be zero on non-periodic axes.
+    pbc : bool or 3 bools
+        Periodic axes.  Only periodic axes wrap (coordinates and template).
+    method : {"kd", "sort"}
+        Construction: recursive median split (default) or Boris's sort.
+    shape : 3 ints, optional
+        Force the grid shape (``NX*NY*NZ >= N``); by default it follows the
+        occupied extent and dimensionality of the atoms (DESIGN 2.3).
+    sweep_cap : int
+        Maximum swap sweeps per update before falling back to a rebuild.
+    monitor_every : int
+        Updates between checks of line registration on periodic axes.
+    max_phase_lag : float
+        Rebuild when two lines of a periodic axis are out of register by more
+        than this many site spacings.
+
+    Attributes
+    ----------
+    shape : tuple (NX, NY, NZ)
+    sites : int64 array (NX, NY, NZ)
+        Atom index at each site, -1 for a hole.  Every atom appears once.
+    positions : float64 array (N, 3)
+        The positions the grid was last built or updated with (Å).
+    box : :class:`ase_mlg.geometry.Box`
+        Cell and pbc.
+    stats : dict
+        Cumulative ``updates``, ``sweeps``, ``swaps``, ``rebuilds`` and the
+        ``last`` update's record.
+    """
+
+    def __init__(self, positions, cell=None, pbc=False, method="kd",
+                 shape=None, sweep_cap=64, monitor_every=10,
+                 max_phase_lag=1.5):
+        if method not in _METHODS:
+            raise ValueError(f"method: expected 'kd' or 'sort', got {method!r}")
+        if int(sweep_cap) < 1:
+            raise ValueError(f"sweep_cap: must be >= 1, got {sweep_cap}")
+        self.method = method
+        self.box = Box(cell, pbc)
+        self.sweep_cap = int(sweep_cap)
+        self.monitor_every = int(monitor_every)
+        self.max_phase_lag = float(max_phase_lag)
+        self._forced_shape = None if shape is None else tuple(int(s) for s in shape)
+        self.stats = {"updates": 0, "sweeps": 0, "swaps": 0, "rebuilds": 0,
+                      "last": None}
+        self._build(as_positions(positions))
+
+    @classmethod
+    def from_atoms(cls, atoms, **kwargs):
+        """Grid of an ASE ``Atoms`` object (positions, cell, pbc)."""
+        return cls(atoms.positions, atoms.cell.array, atoms.pbc, **kwargs)
+
+    # -- construction -----------------------------------------------------
+    def _grid_coordinates(self, positions):
+        frac = self.box.fractional(positions)
+        if not np.isfinite(frac).all():
+            raise ValueError("positions: fractional coordinates overflow "
+                             "(atoms too far from the cell)")
+        self._origin = wrap_origins(frac, self.box.pbc)
+        for a in range(3):
+            if self.box.pbc[a]:
+                f = frac[:, a] - self._origin[a]
+                frac[:, a] = f - np.floor(f) + self._origin[a]
+        return np.ascontiguousarray(frac * self.box.heights)
+
+    def _build(self, positions):
+        n = len(positions)
+        self.positions = positions.copy()
+        self.natoms = n
+        g = self._grid_coordinates(positions) if n else np.zeros((0, 3))
+        pbc = self.box.pbc
+        h = self.box.heights
+        if n:
+            lo, hi = g.min(axis=0), g.max(axis=0)
+            extent = hi - lo
+            for a in range(3):
+                if pbc[a]:
+                    o = self._origin[a] * h[a]
+                    # a periodic axis filled with atoms spans its whole period
+                    if self._origin[a] == 0.0:
+                        lo[a], hi[a] = 0.0, h[a]
+                        extent[a] = h[a]
+        else:
+            lo = hi = extent = np.zeros(3)
+        shape = self._forced_shape or grid_shape(extent, pbc, n)
+        if np.prod(shape) < n or min(shape) < (1 if n else 0):
+            raise ValueError(f"shape: {shape} has fewer sites than the {n} atoms")
+        self.shape = tuple(int(s) for s in shape)
+        self._periods = np.where(pbc, h, 0.0)
+        sites, coords = _build(g, *self.shape, lo.astype(np.float64),
+                               hi.astype(np.float64), _METHODS[self.method])
+        self._sites = sites
+        self._coords = coords
+        self._since_monitor = 0
+
+    def rebuild(self, positions=None):
+        """Construct the grid anew (O(N log N))."""
+        pos = self.positions if positions is None else as_positions(positions)
+        self._build(pos)
+        self.stats["rebuilds"] += 1
+
+    # -- public views -------------------------------------------------------
+    @property
+    def sites(self):
+        return self._sites.reshape(self.shape)
+
+    @property
+    def nholes(self):
+        return int(np.prod(self.shape)) - self.natoms
+
+    def coordinates(self):
+        """Grid coordinates of every site, shape ``(NX, NY, NZ, 3)`` (Å).
+
+        These are the numbers the monotone order holds on (holes included):
+        fractional coordinates times cell heights, continuous in time across
+        periodic faces (see the module docstring)."""
+        return self._coords.reshape(self.shape + (3,)).copy()
+
+    def site_of_atom(self):
+        """Flat site index of each atom (inverse of ``sites``)."""
+        inv = np.empty(self.natoms, dtype=np.int64)
+        occ = np.flatnonzero(self._sites >= 0)
+        inv[self._sites[occ]] = occ
+        return inv
+
+    def is_monotone(self):
+        """True when eq. 3.1 holds on every line (and the seam condition on
+        periodic axes)."""
+        if self._sites.size == 0:
+            return True
+        return bool(_monotone(self._coords, np.array(self.shape), self._periods))
+
+    # -- maintenance ----------------------------------------------------------
+    def update(self, positions):
+        """Follow the atoms to ``positions`` and restore the order by swap
+        sweeps (O(N)); rebuild if the sweep cap is hit or periodic lines have
+        drifted out of register.
+
+        Returns
+        -------
+        dict
+            ``sweeps`` (sweeps that swapped), ``swaps``, ``rebuilt`` (bool)
+            and ``reason`` (None, "sweep cap" or "phase lag").  Also added to
+            ``stats``.
+        """
+        pos = as_positions(positions)
+        if len(pos) != self.natoms:
+            raise ValueError(f"positions: grid holds {self.natoms} atoms, got "
+                             f"{len(pos)}; build a new grid (or call rebuild)")
+        self.positions = pos.copy()
+        rec = {"sweeps": 0, "swaps": 0, "rebuilt": False, "reason": None}
+        if self.natoms:
+            g = self.box.fractional(pos) * self.box.heights
+            if not np.isfinite(g).all():
+                raise ValueError("positions: fractional coordinates overflow")
+            _follow(self._sites, self._coords, g, self._periods)
+            sweeps, swaps, ok = _sweeps(self._sites, self._coords,
+                                        np.array(self.shape), self._periods,
+                                        self.sweep_cap)
+            rec["sweeps"], rec["swaps"] = int(sweeps), int(swaps)
+            if not ok:
+                rec["rebuilt"], rec["reason"] = True, "sweep cap"
+            elif self.box.pbc.any() and self.monitor_every > 0:
+                self._since_monitor += 1
+                if self._since_monitor >= self.monitor_every:
+                    self._since_monitor = 0
+                    if self.phase_lag() > self.max_phase_lag:
+                        rec["rebuilt"], rec["reason"] = True, "phase lag"
+            if rec["rebuilt"]:
+                self.rebuild(pos)
+        st = self.stats
+        st["updates"] += 1
+        st["sweeps"] += rec["sweeps"]
+        st["swaps"] += rec["swaps"]
+        st["last"] = rec
+        return rec
+
+    def phase_lag(self):
+        """Largest misregistration between adjacent lines of a periodic
+        axis, in site spacings.
+
+        A line's phase is the mean offset of its stored coordinates from the
+        evenly spaced positions ``(i + 1/2) L / n``; seam swaps preserve it,
+        so it follows the line's centre of mass (DESIGN 2.4).  Adjacent lines
+        whose phases differ by p spacings pair site i with site i - p.
+        """
+        c = self._coords.reshape(self.shape + (3,))
+        worst = 0.0
+        for a in range(3):
+            n = self.shape[a]
+            if not self.box.pbc[a] or n < 2:
+                continue
+            spacing = self._periods[a] / n
+            ideal = (np.arange(n) + 0.5) * spacing
+            x = np.moveaxis(c[..., a], a, -1) - ideal
+            phase = x.mean(axis=-1) / spacing  # (lines over the other two axes)
+            for ax in range(2):
+                if phase.shape[ax] > 1:
+                    worst = max(worst, float(np.abs(np.diff(phase, axis=ax)).max()))
+        return worst
+
+    def __repr__(self):
+        return (f"MLG(natoms={self.natoms}, shape={self.shape}, holes={self.nholes}, "
+                f"method={self.method!r}, pbc={self.box.pbc.tolist()})")
