@@ -171,7 +171,8 @@ def grid_shape(extent, periodic, natoms):
     if n <= 1:
         return (n, n, n)
     extent = np.asarray(extent, dtype=np.float64)
-    c = np.where(periodic, 0.0, 1.0)
+    # an axis with no extent holds one layer whatever its pbc
+    c = np.where(np.asarray(periodic) & (extent > 0), 0.0, 1.0)
     if not (extent > 0).any():
         # all atoms at one point: no geometry to follow, use a cube
         m = int(np.ceil(n ** (1 / 3) - 1e-9))

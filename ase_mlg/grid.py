@@ -583,14 +583,16 @@ class MLG:
             extent = hi - lo
             for a in range(3):
                 if pbc[a]:
-                    o = self._origin[a] * h[a]
                     # a periodic axis filled with atoms spans its whole period
                     if self._origin[a] == 0.0:
                         lo[a], hi[a] = 0.0, h[a]
                         extent[a] = h[a]
         else:
             lo = hi = extent = np.zeros(3)
-        shape = self._forced_shape or grid_shape(extent, pbc, n)
+        # a periodic axis with a vacuum gap is gridded over its occupied
+        # extent, like an open axis
+        filled = pbc & (self._origin == 0.0) if n else pbc
+        shape = self._forced_shape or grid_shape(extent, filled, n)
         if np.prod(shape) < n or min(shape) < (1 if n else 0):
             raise ValueError(f"shape: {shape} has fewer sites than the {n} atoms")
         self.shape = tuple(int(s) for s in shape)

@@ -1,0 +1,738 @@
+"""Pair potentials evaluated by one generic numba kernel.
+
+A pair potential is a numba-compiled pair function plus a table of parameter
+rows, one row per species pair.  Every potential -- built-in or user-defined --
+is evaluated by the same compiled kernel, :func:`accumulate_pairs`, which
+receives the pair function as a first-class function argument.
+
+Units are those of ASE: distances in Å, energies in eV, forces in eV/Å,
+virials in eV.
+
+Writing your own pair potential
+-------------------------------
+1. Write the pair function.  It takes the distance ``r`` (Å, a float) and
+   ``p``, the parameter row of the species pair (a C-contiguous float64 1-D
+   array), and returns the pair energy (eV) and its derivative ``dE/dr``
+   (eV/Å), both floats::
+
+       @numba.njit(cache=True, error_model='numpy')
+       def f(r, p):
+           return e, dedr
+
+   It is called only for ``0 < r < cutoff`` of the species pair and must not
+   modify ``p`` (a view of the potential's table).  Truncation, shifting or
+   smoothing at the cutoff is the function's own business (see
+   :func:`lennard_jones_shifted`).  With ``error_model='numpy'`` a division
+   by zero gives ``inf``, which the kernel reports with the offending pair;
+   ``cache=True`` is recommended when the function lives in a file.  The
+   function is compiled for :data:`PAIR_SIGNATURE` and called through a
+   function pointer, so it is not inlined into the kernel.
+
+2. Build a :class:`PairPotential` with one row per *unordered* species pair
+   (``('Ar', 'Kr')`` also defines ``('Kr', 'Ar')``) and a cutoff per pair, or a
+   single cutoff for all pairs.  A single row instead of a dict makes the
+   potential species-agnostic, like ASE's LJ and Morse calculators.
+
+Examples
+--------
+A Buckingham potential for an argon-krypton mixture.  Buckingham energies
+dive to minus infinity at short range, so ``rmin`` turns unphysically close
+pairs into an error instead of a silent collapse.
+
+>>> import numba, numpy as np
+>>> from ase_mlg.potentials import PairPotential
+>>> @numba.njit(error_model='numpy')
+... def buckingham(r, p):
+...     A, rho, C = p[0], p[1], p[2]
+...     rep = A * np.exp(-r / rho)
+...     return rep - C / r**6, -rep / rho + 6.0 * C / r**7
+>>> pot = PairPotential(
+...     buckingham,
+...     params={('Ar', 'Ar'): [5000.0, 0.28, 60.0],
+...             ('Ar', 'Kr'): [6000.0, 0.29, 90.0],
+...             ('Kr', 'Kr'): [7000.0, 0.30, 130.0]},
+...     cutoffs=8.0, rmin=1.5, nparams=3)
+>>> pot.species
+('Ar', 'Kr')
+>>> res = pot.evaluate([18, 36], i=[0], j=[1], D=[[0.0, 0.0, 4.0]])
+>>> bool(np.isclose(res['energy'], 6000 * np.exp(-4 / 0.29) - 90 / 4**6))
+True
+
+:func:`lennard_jones_mixture` is a worked example built the same way.
+"""
+
+import math
+from collections.abc import Mapping
+
+import numba
+import numpy as np
+from ase.data import atomic_numbers, chemical_symbols
+from numba import types as nbt
+from numba.core.dispatcher import Dispatcher
+
+__all__ = [
+    'PairPotential',
+    'LennardJones',
+    'Morse',
+    'lennard_jones_mixture',
+    'lennard_jones_shifted',
+    'lennard_jones_smooth',
+    'morse',
+    'accumulate_pairs',
+    'PAIR_SIGNATURE',
+]
+
+#: Numba signature every pair function is compiled to: ``(r, p) -> (e, dedr)``.
+PAIR_SIGNATURE = nbt.UniTuple(nbt.float64, 2)(nbt.float64, nbt.float64[::1])
+
+# Error codes returned by the kernel; the Python side turns them into messages
+# because a numba exception cannot carry the pair's indices and distance.
+_OK, _BAD_INDEX, _BAD_DISTANCE, _BELOW_RMIN, _NON_FINITE = range(5)
+
+
+def _kernel_signature(index):
+    f64 = nbt.float64
+    return nbt.Tuple((f64, nbt.int64, nbt.int64))(
+        # A FunctionType argument (a function pointer) instead of a dispatcher
+        # type: the kernel is compiled once for all pair functions, and its
+        # on-disk cache stays valid (a dispatcher argument is specialised per
+        # function object and misses the cache in every new process).
+        nbt.FunctionType(PAIR_SIGNATURE),
+        index[::1], index[::1], f64[:, ::1], f64[::1],
+        nbt.int32[::1], f64[:, :, ::1], f64[:, ::1], f64[:, ::1],
+        f64[::1], f64[:, ::1], f64[:, ::1],
+    )
+
+
+@numba.njit([_kernel_signature(nbt.int32), _kernel_signature(nbt.int64)],
+            cache=True, nogil=True, error_model='numpy')
+def accumulate_pairs(pair, i, j, D, d, types, params, cutoffs, rmin,
+                     energies, forces, virials):
+    """Accumulate a half pair list into energies, forces and virials.
+
+    Low-level kernel behind :meth:`PairPotential.evaluate`; the output
+    arrays are added to, not overwritten.
+
+    Parameters
+    ----------
+    pair : numba function ``(r, p) -> (e, dedr)``, see :data:`PAIR_SIGNATURE`.
+    i, j : int32[M] or int64[M]
+        Half pair list, each pair once.
+    D : float64[M, 3]
+        Vector from atom ``i`` to (the image of) atom ``j``, Å.
+    d : float64[M]
+        Its norm, Å.
+    types : int32[N]
+        Type index of each atom.
+    params : float64[T, T, P]
+        Parameter row of each type pair.
+    cutoffs, rmin : float64[T, T]
+        Pairs with ``d >= cutoffs`` are skipped; ``d < rmin`` is an error.
+    energies : float64[N]
+        Per-atom energies, eV; each pair energy is split half/half.
+    forces : float64[N, 3]
+        eV/Å.
+    virials : float64[N, 6]
+        Per-atom virials in Voigt order (xx, yy, zz, yz, xz, xy), eV: half of
+        each pair's ``-D (x) dE/dD`` to each atom.
+
+    Returns
+    -------
+    energy : float
+        Total energy, eV.
+    bad : int
+        Index of the first offending pair, or -1.
+    code : int
+        Why that pair failed (one of the module's ``_BAD_*`` codes).
+    """
+    n = energies.shape[0]
+    energy = 0.0
+    # Slicing a fresh row view for every pair costs reference counting; reuse
+    # the last one while the type pair does not change.
+    last_a, last_b = 0, 0
+    p = params[0, 0]
+    for k in range(i.shape[0]):
+        a = i[k]
+        b = j[k]
+        if a < 0 or a >= n or b < 0 or b >= n:
+            return energy, k, _BAD_INDEX
+        ta = types[a]
+        tb = types[b]
+        r = d[k]
+        if r >= cutoffs[ta, tb]:
+            continue
+        if not r > 0.0:  # also catches NaN
+            return energy, k, _BAD_DISTANCE
+        if r < rmin[ta, tb]:
+            return energy, k, _BELOW_RMIN
+        if ta != last_a or tb != last_b:
+            last_a, last_b = ta, tb
+            p = params[ta, tb]
+        e, dedr = pair(r, p)
+        if not (math.isfinite(e) and math.isfinite(dedr)):
+            return energy, k, _NON_FINITE
+        energy += e
+        energies[a] += 0.5 * e
+        energies[b] += 0.5 * e
+        s = dedr / r
+        dx, dy, dz = D[k, 0], D[k, 1], D[k, 2]
+        fx, fy, fz = s * dx, s * dy, s * dz  # force on a; minus that on b
+        forces[a, 0] += fx
+        forces[a, 1] += fy
+        forces[a, 2] += fz
+        forces[b, 0] -= fx
+        forces[b, 1] -= fy
+        forces[b, 2] -= fz
+        # Central forces give a symmetric virial: six components suffice.
+        w = (fx * dx, fy * dy, fz * dz, fy * dz, fx * dz, fx * dy)
+        for c in range(6):
+            virials[a, c] -= 0.5 * w[c]
+            virials[b, c] -= 0.5 * w[c]
+    return energy, -1, _OK
+
+
+# Voigt (N, 6) -> (N, 3, 3) by fancy indexing.
+_VOIGT_TO_3X3 = np.array([[0, 5, 4], [5, 1, 3], [4, 3, 2]])
+
+
+# ------------------------------------------------------------ pair functions
+
+@numba.njit(cache=True, inline='always', error_model='numpy')
+def _lj(r2, sigma, epsilon):
+    # Same operation order as ase.calculators.lj, so results agree to rounding.
+    c6 = (sigma * sigma / r2) ** 3
+    c12 = c6 * c6
+    return 4.0 * epsilon * (c12 - c6), -24.0 * epsilon * (2.0 * c12 - c6) / r2
+
+
+@numba.njit(cache=True, error_model='numpy')
+def lennard_jones_shifted(r, p):
+    """Lennard-Jones shifted to zero at the cutoff (ASE ``smooth=False``).
+
+    ``p = [sigma (Å), epsilon (eV), shift (eV)]`` where ``shift`` is the
+    unshifted energy at the cutoff.  Returns ``(e, dE/dr)``.
+    """
+    r2 = r * r
+    e, du = _lj(r2, p[0], p[1])
+    return e - p[2], du * r
+
+
+@numba.njit(cache=True, error_model='numpy')
+def lennard_jones_smooth(r, p):
+    """Lennard-Jones times ASE's C^1 cutoff function between ro and rc.
+
+    ``p = [sigma (Å), epsilon (eV), rc (Å), ro (Å)]``.  Returns
+    ``(e, dE/dr)``.
+    """
+    r2 = r * r
+    e, du = _lj(r2, p[0], p[1])
+    rc2 = p[2] * p[2]
+    ro2 = p[3] * p[3]
+    if r2 < ro2:
+        return e, du * r
+    if r2 >= rc2:
+        return 0.0, 0.0
+    # ASE's cutoff function is a polynomial in r**2, hence the factor 2 below.
+    den = (rc2 - ro2) ** 3
+    fc = (rc2 - r2) ** 2 * (rc2 + 2.0 * r2 - 3.0 * ro2) / den
+    dfc = 6.0 * (rc2 - r2) * (ro2 - r2) / den
+    return fc * e, (fc * du + 2.0 * dfc * e) * r
+
+
+@numba.njit(cache=True, error_model='numpy')
+def morse(r, p):
+    """Morse potential with ASE's quintic cutoff between rcut1 and rcut2.
+
+    ``p = [epsilon (eV), r0 (Å), rho0, rcut1 (Å), rcut2 (Å)]``; the cutoffs
+    here are absolute, already multiplied by ``r0``.  Returns ``(e, dE/dr)``.
+    """
+    epsilon, r0, rho0, r1, r2 = p[0], p[1], p[2], p[3], p[4]
+    expf = math.exp(rho0 * (1.0 - r / r0))
+    e = epsilon * expf * (expf - 2.0)
+    de = (-2.0 * epsilon * rho0 / r0) * expf * (expf - 1.0)
+    s = 1.0 - (r - r1) / (r2 - r1)
+    if s >= 1.0:
+        return e, de
+    if s <= 0.0:
+        return 0.0, 0.0
+    fc = 6.0 * s**5 - 15.0 * s**4 + 10.0 * s**3
+    dfc = -(30.0 * s**4 - 60.0 * s**3 + 30.0 * s**2) / (r2 - r1)
+    return e * fc, de * fc + e * dfc
+
+
+# ---------------------------------------------------------------- validation
+
+def _number(name, value, minimum=None, strict=False):
+    """Return ``value`` as a finite float, optionally bounded below."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f'{name} must be a number, got {value!r}') from None
+    if not math.isfinite(x):
+        raise ValueError(f'{name} must be finite, got {x}')
+    if minimum is not None and (x <= minimum if strict else x < minimum):
+        raise ValueError(
+            f'{name} must be {">" if strict else ">="} {minimum}, got {x}')
+    return x
+
+
+def _atomic_number(species):
+    if isinstance(species, str):
+        if species not in atomic_numbers:
+            raise ValueError(f'unknown element {species!r}')
+        return atomic_numbers[species]
+    if not (isinstance(species, (int, np.integer))
+            and 0 < species < len(chemical_symbols)):
+        raise ValueError(f'invalid element {species!r}')
+    return int(species)
+
+
+def _pair_key(key, what):
+    if not (isinstance(key, tuple) and len(key) == 2):
+        raise ValueError(f'{what} keys must be pairs like (\'Ar\', \'Kr\'), '
+                         f'got {key!r}')
+    return tuple(sorted(_atomic_number(s) for s in key))
+
+
+def _pair_name(za, zb):
+    return f'({chemical_symbols[za]}, {chemical_symbols[zb]})'
+
+
+def _pair_dict(mapping, what):
+    """``{(A, B): value}`` -> ``{(za, zb): value}`` with ``za <= zb``."""
+    out = {}
+    for key, value in mapping.items():
+        zz = _pair_key(key, what)
+        if zz in out and not np.array_equal(out[zz], value):
+            raise ValueError(f'{what} for {_pair_name(*zz)} given twice with '
+                             f'different values')
+        out[zz] = value
+    return out
+
+
+def _row(value, name):
+    try:
+        row = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        row = None
+    if row is None or row.ndim != 1:
+        raise ValueError(f'{name} must be a 1-D sequence of numbers, '
+                         f'got {value!r}')
+    if not np.all(np.isfinite(row)):
+        raise ValueError(f'{name} contains non-finite values: {row}')
+    return row
+
+
+# ---------------------------------------------------------------- potentials
+
+class PairPotential:
+    """A pair potential: a numba pair function plus per-species-pair tables.
+
+    Parameters
+    ----------
+    pair : numba.njit function ``(r, p) -> (e, dedr)``
+        Pair energy (eV) and its derivative (eV/Å) at distance ``r`` (Å) for
+        the parameter row ``p`` (float64 1-D array).
+    params : dict or sequence of float
+        ``{(A, B): row}`` with ``A``, ``B`` element symbols or atomic numbers;
+        one entry per unordered pair of the species involved (``(A, B)``
+        also defines ``(B, A)``).  A single row applies to every pair of
+        elements (species-agnostic potential).
+    cutoffs : dict or float
+        Cutoff per species pair (same keys as ``params``) or one for all, Å.
+        Pairs with ``d >= cutoff`` contribute nothing.
+    rmin : dict or float, optional
+        Closer pairs raise ``ValueError`` (use for potentials that are
+        singular or unphysical at short range), Å.  Pairs missing from a
+        dict get 0.
+    nparams : int, optional
+        Expected row length; checked if given.
+
+    Attributes
+    ----------
+    cutoff : float
+        Largest cutoff over all species pairs, Å: the neighbour-list cutoff.
+    species : tuple of str or None
+        Element symbols in type-index order; None if species-agnostic.
+    params, cutoffs, rmin : ndarray
+        Tables ``float64[T, T, P]``, ``float64[T, T]``, ``float64[T, T]``.
+    """
+
+    def __init__(self, pair, params, cutoffs, rmin=0.0, nparams=None):
+        if not isinstance(pair, Dispatcher):
+            raise TypeError(f'pair function {pair!r} must be compiled with '
+                            f'@numba.njit')
+        self.pair = pair
+        if isinstance(params, Mapping):
+            self._init_species(params, cutoffs, rmin)
+        else:
+            self._init_agnostic(params, cutoffs, rmin)
+        if nparams is not None and self.params.shape[2] != nparams:
+            raise ValueError(f'parameter rows must have length {nparams}, '
+                             f'got {self.params.shape[2]}')
+        self.cutoff = float(self.cutoffs.max())
+        self._check_pair_function()
+
+    def _init_agnostic(self, params, cutoffs, rmin):
+        if isinstance(cutoffs, Mapping) or isinstance(rmin, Mapping):
+            raise ValueError('per-pair cutoffs/rmin need per-pair params '
+                             '(a dict); got a single parameter row')
+        self.species = None
+        self.params = _row(params, 'params')[None, None, :].copy()
+        cut = _number('cutoffs', cutoffs, 0.0, strict=True)
+        self.cutoffs = np.full((1, 1), cut)
+        self.rmin = np.full((1, 1), _number('rmin', rmin, 0.0))
+        # Every element maps to type 0.
+        self._type_of = np.zeros(len(chemical_symbols), dtype=np.int32)
+        self._check_rmin()
+
+    def _init_species(self, params, cutoffs, rmin):
+        rows = {zz: _row(v, f'params{_pair_name(*zz)}')
+                for zz, v in _pair_dict(params, 'params').items()}
+        zs = sorted({z for zz in rows for z in zz})
+        pairs = [(a, b) for n, a in enumerate(zs) for b in zs[n:]]
+        missing = [_pair_name(*zz) for zz in pairs if zz not in rows]
+        if missing:
+            raise ValueError(f'params missing for species pairs: '
+                             f'{", ".join(missing)}')
+        lengths = {len(r) for r in rows.values()}
+        if len(lengths) > 1:
+            detail = ', '.join(f'{_pair_name(*zz)}: {len(r)}'
+                               for zz, r in rows.items())
+            raise ValueError(f'parameter rows differ in length ({detail})')
+
+        self.species = tuple(chemical_symbols[z] for z in zs)
+        index = {z: t for t, z in enumerate(zs)}
+        ntypes = len(zs)
+        self.params = np.empty((ntypes, ntypes, lengths.pop()))
+        self.cutoffs = self._pair_table(cutoffs, 'cutoffs', index, pairs,
+                                        required=True)
+        self.rmin = self._pair_table(rmin, 'rmin', index, pairs,
+                                     required=False)
+        for (za, zb), row in rows.items():
+            self.params[index[za], index[zb]] = row
+            self.params[index[zb], index[za]] = row
+        self._type_of = np.full(len(chemical_symbols), -1, dtype=np.int32)
+        self._type_of[zs] = np.arange(ntypes, dtype=np.int32)
+        self._check_rmin()
+
+    @staticmethod
+    def _pair_table(values, what, index, pairs, required):
+        """Symmetric ``float64[T, T]`` table from a dict or one number."""
+        # Cutoffs must be positive; rmin may be 0 (no limit).
+        ntypes, strict = len(index), required
+        if not isinstance(values, Mapping):
+            value = _number(what, values, 0.0, strict)
+            return np.full((ntypes, ntypes), value)
+        given = _pair_dict(values, what)
+        unknown = [_pair_name(*zz) for zz in given if zz not in pairs]
+        if unknown:
+            raise ValueError(f'{what} given for species pairs without params: '
+                             f'{", ".join(unknown)}')
+        missing = [_pair_name(*zz) for zz in pairs if zz not in given]
+        if required and missing:
+            raise ValueError(f'{what} missing for species pairs: '
+                             f'{", ".join(missing)}')
+        table = np.zeros((ntypes, ntypes))
+        for zz, v in given.items():
+            x = _number(f'{what}{_pair_name(*zz)}', v, 0.0, strict)
+            table[index[zz[0]], index[zz[1]]] = x
+            table[index[zz[1]], index[zz[0]]] = x
+        return table
+
+    def _check_rmin(self):
+        bad = np.argwhere(self.rmin >= self.cutoffs)
+        if len(bad):
+            ta, tb = bad[0]
+            raise ValueError(f'rmin {self.rmin[ta, tb]} >= cutoff '
+                             f'{self.cutoffs[ta, tb]} for species pair '
+                             f'{self._type_name(ta, tb)}')
+
+    def _type_name(self, ta, tb):
+        if self.species is None:
+            return '(any, any)'
+        return f'({self.species[ta]}, {self.species[tb]})'
+
+    def _check_pair_function(self):
+        # Run the kernel on an empty list so a pair function with the wrong
+        # signature fails here, with a readable message, not mid-simulation.
+        try:
+            accumulate_pairs(
+                self.pair, np.zeros(0, np.int64), np.zeros(0, np.int64),
+                np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int32),
+                self.params, self.cutoffs, self.rmin, np.zeros(0),
+                np.zeros((0, 3)), np.zeros((0, 6)))
+        except (TypeError, numba.core.errors.NumbaError) as err:
+            lines = [ln for ln in str(err).splitlines() if ln.strip()]
+            detail = next((ln for ln in lines if not ln.startswith('Failed')),
+                          lines[0] if lines else '')
+            raise TypeError(
+                f'pair function {self.pair.__name__} must be numba code '
+                f'f(r: float, p: float64[::1]) -> (energy, dE/dr): {detail}'
+            ) from None
+
+    def prepare(self, numbers):
+        """Map atomic numbers to type indices.
+
+        Parameters
+        ----------
+        numbers : int array (N,)
+            Atomic numbers.
+
+        Returns
+        -------
+        types : int32[N]
+        params : float64[T, T, P]
+        cutoffs : float64[T, T]
+            Å.
+
+        Raises
+        ------
+        ValueError
+            If an atom's element has no parameters.
+        """
+        numbers = np.asarray(numbers)
+        if numbers.ndim != 1 or (numbers.size and numbers.dtype.kind not in
+                                 'iu'):
+            raise ValueError('numbers must be a 1-D integer array')
+        if numbers.size:
+            bad = np.flatnonzero((numbers < 0) |
+                                 (numbers >= len(chemical_symbols)))
+            if len(bad):
+                raise ValueError(f'atom {bad[0]} has invalid atomic number '
+                                 f'{numbers[bad[0]]}')
+        types = self._type_of[numbers.astype(np.intp)]
+        bad = np.flatnonzero(types < 0)
+        if len(bad):
+            z = numbers[bad[0]]
+            raise ValueError(
+                f'no parameters for element {chemical_symbols[z]} (atom '
+                f'{bad[0]}); this potential covers {", ".join(self.species)}')
+        return types, self.params, self.cutoffs
+
+    def evaluate(self, numbers, i, j, D, d=None):
+        """Energy, forces and virials from a half pair list.
+
+        Parameters
+        ----------
+        numbers : int array (N,)
+            Atomic numbers.
+        i, j : int array (M,)
+            Half pair list: each interacting pair once (``i == j`` allowed
+            for periodic images).  int32 or int64 avoid a copy.
+        D : float array (M, 3)
+            Vector from atom ``i`` to (the image of) atom ``j``, Å.
+        d : float array (M,), optional
+            ``|D|``, Å; computed if not given (not checked if given).
+
+        Returns
+        -------
+        dict
+            ``energy`` (eV), ``energies`` (N,) eV, ``forces`` (N, 3) eV/Å,
+            ``virial`` (3, 3) eV, ``virials`` (N, 3, 3) eV and
+            ``virials_voigt`` (N, 6) eV.  The virial is
+            ``-sum_pairs D (x) dE/dD`` (``sum_i r_i (x) F_i`` for a finite
+            system): ASE's stress is ``-virial / volume`` and ASE's per-atom
+            ``stresses`` are ``-virials_voigt / volume``.
+
+        Raises
+        ------
+        ValueError
+            On malformed arrays, atom indices out of range, a pair closer than
+            ``rmin`` or at distance 0, or a non-finite pair energy/force.
+        """
+        types, params, cutoffs = self.prepare(numbers)
+        n = len(types)
+        i, j = _index_arrays(i, j)
+        m = len(i)
+        D = np.ascontiguousarray(D, dtype=np.float64)
+        if D.shape != (m, 3):
+            raise ValueError(f'D must have shape ({m}, 3), got {D.shape}')
+        if d is None:
+            d = np.sqrt(np.einsum('ij,ij->i', D, D))
+        else:
+            d = np.ascontiguousarray(d, dtype=np.float64)
+            if d.shape != (m,):
+                raise ValueError(f'd must have shape ({m},), got {d.shape}')
+
+        energies = np.zeros(n)
+        forces = np.zeros((n, 3))
+        voigt = np.zeros((n, 6))
+        try:
+            energy, bad, code = accumulate_pairs(
+                self.pair, i, j, D, d, types, params, cutoffs, self.rmin,
+                energies, forces, voigt)
+        except ArithmeticError as err:
+            # Pair functions compiled with error_model='python' raise here;
+            # find the pair in Python (error path only) to name it.
+            bad = self._find_raising_pair(i, j, d, types)
+            if bad < 0:
+                raise
+            raise self._pair_error(i, j, d, types, bad, _NON_FINITE,
+                                   err) from None
+        if bad >= 0:
+            raise self._pair_error(i, j, d, types, bad, code)
+        return {'energy': energy, 'energies': energies, 'forces': forces,
+                'virial': voigt.sum(axis=0)[_VOIGT_TO_3X3],
+                'virials': voigt[:, _VOIGT_TO_3X3], 'virials_voigt': voigt}
+
+    def _find_raising_pair(self, i, j, d, types):
+        for k in range(len(i)):
+            ta, tb = types[i[k]], types[j[k]]
+            if 0 < d[k] < self.cutoffs[ta, tb]:
+                try:
+                    self.pair(d[k], self.params[ta, tb])
+                except ArithmeticError:
+                    return k
+        return -1
+
+    def _pair_error(self, i, j, d, types, k, code, cause=None):
+        """The ValueError describing why pair ``k`` failed."""
+        if code == _BAD_INDEX:
+            return ValueError(f'pair {k}: atom index ({i[k]}, {j[k]}) out of '
+                              f'range for {len(types)} atoms')
+        ta, tb = types[i[k]], types[j[k]]
+        where = f'atoms {i[k]} and {j[k]} at distance {d[k]:.6g} Å'
+        if code == _BAD_DISTANCE:
+            return ValueError(f'{where}: distance must be > 0 (overlapping '
+                              f'atoms?)')
+        if code == _BELOW_RMIN:
+            return ValueError(f'{where}: closer than rmin {self.rmin[ta, tb]} '
+                              f'Å for {self._type_name(ta, tb)}')
+        if cause is not None:
+            what = f'{type(cause).__name__}: {cause}'
+        else:
+            e, dedr = self.pair(d[k], self.params[ta, tb])
+            what = f'energy {e}, dE/dr {dedr}'
+        return ValueError(f'{where}: non-finite pair energy or force ({what})')
+
+    def __repr__(self):
+        species = 'any' if self.species is None else ','.join(self.species)
+        return (f'{type(self).__name__}(pair={self.pair.__name__}, '
+                f'species={species}, cutoff={self.cutoff:g})')
+
+
+def _index_arrays(i, j):
+    i = np.asarray(i)
+    j = np.asarray(j)
+    if i.ndim != 1 or i.shape != j.shape:
+        raise ValueError(f'i and j must be 1-D of equal length, got shapes '
+                         f'{i.shape} and {j.shape}')
+    for name, a in (('i', i), ('j', j)):
+        if a.size and a.dtype.kind not in 'iu':
+            raise ValueError(f'{name} must be integer, got {a.dtype}')
+    dtype = np.int32 if i.dtype == j.dtype == np.int32 else np.int64
+    return (np.ascontiguousarray(i, dtype=dtype),
+            np.ascontiguousarray(j, dtype=dtype))
+
+
+class LennardJones(PairPotential):
+    """Lennard-Jones, identical to ``ase.calculators.lj.LennardJones``.
+
+    Parameters
+    ----------
+    sigma : float
+        Å; the minimum is at ``2**(1/6) * sigma``.
+    epsilon : float
+        Well depth, eV.
+    rc : float, optional
+        Cutoff, Å; default ``3 * sigma``.
+    ro : float, optional
+        Onset of the smooth cutoff function, Å; default ``0.66 * rc``.
+    smooth : bool
+        False: energy shifted to 0 at ``rc`` (forces jump to 0 there).
+        True: energy times a C^1 cutoff function going 1 -> 0 on [ro, rc].
+    """
+
+    def __init__(self, sigma=1.0, epsilon=1.0, rc=None, ro=None,
+                 smooth=False):
+        sigma = _number('sigma', sigma, 0.0, strict=True)
+        epsilon = _number('epsilon', epsilon, 0.0)
+        rc = 3 * sigma if rc is None else _number('rc', rc, 0.0, strict=True)
+        ro = 0.66 * rc if ro is None else _number('ro', ro, 0.0)
+        if ro >= rc:
+            raise ValueError(f'ro ({ro}) must be smaller than rc ({rc})')
+        self.sigma, self.epsilon, self.rc, self.ro = sigma, epsilon, rc, ro
+        self.smooth = bool(smooth)
+        if self.smooth:
+            super().__init__(lennard_jones_smooth, [sigma, epsilon, rc, ro],
+                             rc)
+        else:
+            e0 = 4 * epsilon * ((sigma / rc) ** 12 - (sigma / rc) ** 6)
+            super().__init__(lennard_jones_shifted, [sigma, epsilon, e0], rc)
+
+
+class Morse(PairPotential):
+    """Morse, identical to ``ase.calculators.morse.MorsePotential``.
+
+    ``E(r) = epsilon * (exp(-2 rho0 (r/r0 - 1)) - 2 exp(-rho0 (r/r0 - 1)))``
+    times a quintic cutoff going 1 -> 0 between ``rcut1 * r0`` and
+    ``rcut2 * r0``.
+
+    Parameters
+    ----------
+    epsilon : float
+        Well depth, eV.
+    r0 : float
+        Position of the minimum, Å.
+    rho0 : float
+        Dimensionless stiffness; curvature at the minimum is
+        ``2 epsilon (rho0 / r0)**2``.
+    rcut1, rcut2 : float
+        Start and end of the cutoff function, **in units of r0**.
+    """
+
+    def __init__(self, epsilon=1.0, r0=1.0, rho0=6.0, rcut1=1.9, rcut2=2.7):
+        epsilon = _number('epsilon', epsilon, 0.0)
+        r0 = _number('r0', r0, 0.0, strict=True)
+        rho0 = _number('rho0', rho0, 0.0, strict=True)
+        rcut1 = _number('rcut1', rcut1, 0.0)
+        rcut2 = _number('rcut2', rcut2, 0.0, strict=True)
+        if rcut1 >= rcut2:
+            raise ValueError(f'rcut1 ({rcut1}) must be smaller than rcut2 '
+                             f'({rcut2})')
+        self.epsilon, self.r0, self.rho0 = epsilon, r0, rho0
+        self.rcut1, self.rcut2 = rcut1, rcut2
+        super().__init__(morse, [epsilon, r0, rho0, rcut1 * r0, rcut2 * r0],
+                         rcut2 * r0)
+
+
+def lennard_jones_mixture(sigma, epsilon, rc=None):
+    """Shifted Lennard-Jones for several species, Lorentz-Berthelot mixing.
+
+    ``sigma_AB = (sigma_A + sigma_B) / 2``,
+    ``epsilon_AB = sqrt(epsilon_A epsilon_B)``; each pair is shifted to 0 at
+    its cutoff as in ``LennardJones(smooth=False)``.
+
+    Parameters
+    ----------
+    sigma, epsilon : dict
+        ``{element: value}`` in Å and eV, same elements in both.
+    rc : float, optional
+        Cutoff for all pairs, Å; default ``3 * sigma_AB`` per pair.
+
+    Returns
+    -------
+    PairPotential
+        Built from :func:`lennard_jones_shifted` with rows
+        ``[sigma_AB, epsilon_AB, shift_AB]``.
+    """
+    if set(sigma) != set(epsilon):
+        raise ValueError(f'sigma and epsilon must name the same elements, '
+                         f'got {sorted(map(str, sigma))} and '
+                         f'{sorted(map(str, epsilon))}')
+    s = {k: _number(f'sigma[{k!r}]', v, 0.0, strict=True)
+         for k, v in sigma.items()}
+    e = {k: _number(f'epsilon[{k!r}]', v, 0.0) for k, v in epsilon.items()}
+    if rc is not None:
+        rc = _number('rc', rc, 0.0, strict=True)
+    names = list(s)
+    params, cutoffs = {}, {}
+    for n, a in enumerate(names):
+        for b in names[n:]:
+            sab, eab = 0.5 * (s[a] + s[b]), math.sqrt(e[a] * e[b])
+            rab = 3 * sab if rc is None else rc
+            shift = 4 * eab * ((sab / rab) ** 12 - (sab / rab) ** 6)
+            params[a, b] = [sab, eab, shift]
+            cutoffs[a, b] = rab
+    return PairPotential(lennard_jones_shifted, params, cutoffs, nparams=3)
