@@ -204,7 +204,6 @@ def _build(g, nx, ny, nz, lo0, hi0, method):
 # maintenance: odd-even swap sweeps (Boris 1985 sec. III)
 # --------------------------------------------------------------------------
 
-@njit(cache=True, parallel=True)
 def _phase(sites, coords, n, stride, axis, parity):
     """One odd or even phase along one axis: compare sites (s, s+stride) for
     line index i = parity, parity+2, ...; the pairs are disjoint, so the
@@ -231,7 +230,6 @@ def _phase(sites, coords, n, stride, axis, parity):
     return swaps
 
 
-@njit(cache=True, parallel=True)
 def _seam(sites, coords, n, stride, axis, period):
     """The periodic seam of every line: site n-1 precedes site 0 of the next
     period.  A swap exchanges the two and shifts their stored coordinates by
@@ -257,12 +255,21 @@ def _seam(sites, coords, n, stride, axis, period):
     return swaps
 
 
+# Each phase is compiled twice: threads pay off only on large grids, and on
+# small ones the cost of waking them (hundreds of launches per MD step) would
+# dominate.  The pairs of a phase are disjoint, so both give the same answer.
+_phase_serial, _phase_parallel = njit(cache=True)(_phase), njit(cache=True, parallel=True)(_phase)
+_seam_serial, _seam_parallel = njit(cache=True)(_seam), njit(cache=True, parallel=True)(_seam)
+PARALLEL_SITES = 32768
+
+
 @njit(cache=True)
 def _sweeps(sites, coords, shape, periods, cap):
     """Swap sweeps until a full sweep makes no swap, or ``cap`` sweeps.
 
     Returns (sweeps that swapped, total swaps, converged).
     """
+    par = sites.size >= PARALLEL_SITES
     strides = np.array([shape[1] * shape[2], shape[2], 1])
     nsweep = 0
     nswap = 0
@@ -272,10 +279,16 @@ def _sweeps(sites, coords, shape, periods, cap):
             n = shape[axis]
             if n < 2:
                 continue
-            swaps += _phase(sites, coords, n, strides[axis], axis, 0)
-            swaps += _phase(sites, coords, n, strides[axis], axis, 1)
+            for parity in range(2):
+                if par:
+                    swaps += _phase_parallel(sites, coords, n, strides[axis], axis, parity)
+                else:
+                    swaps += _phase_serial(sites, coords, n, strides[axis], axis, parity)
             if periods[axis] > 0.0:
-                swaps += _seam(sites, coords, n, strides[axis], axis, periods[axis])
+                if par:
+                    swaps += _seam_parallel(sites, coords, n, strides[axis], axis, periods[axis])
+                else:
+                    swaps += _seam_serial(sites, coords, n, strides[axis], axis, periods[axis])
         if swaps == 0:
             return nsweep, nswap, True
         nsweep += 1
