@@ -51,8 +51,18 @@ def fcc_copper(natoms=4000, a=3.61):
 
 
 def dilute_gas(natoms=1000, rho=0.05, seed=0):
-    """Argon gas at reduced density ``rho``: random points, periodic."""
-    return random_points(natoms, rho / SIGMA_AR ** 3, seed=seed)
+    """Argon gas at reduced density ``rho``, periodic: a simple-cubic lattice
+    with uniform random displacements large enough to erase the lattice
+    locally but keeping every pair beyond sigma (random points would put
+    some atoms on top of each other, which no MD run starts from)."""
+    m = max(1, int(round(natoms ** (1 / 3))))
+    a = (rho / SIGMA_AR ** 3) ** (-1 / 3)
+    rng = np.random.default_rng(seed)
+    base = np.stack(np.meshgrid(*[np.arange(m)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    amp = max(0.0, 0.5 * (a - SIGMA_AR))
+    x = (base + 0.5) * a + rng.uniform(-amp, amp, base.shape)
+    L = m * a
+    return Atoms("Ar%d" % len(x), positions=x % L, cell=[L, L, L], pbc=True)
 
 
 def nanoparticle(natoms=1000, a=3.61):

@@ -1,0 +1,161 @@
+"""MLGCalculator: cutoff pair potentials through the MLG, as an ASE Calculator.
+
+Per call the calculator needs the pairs within the potential's cutoff.  It
+keeps one :class:`~ase_mlg.grid.MLG` for the life of the system and a pair
+list built with a Verlet ``skin``:
+
+* ``template=None`` (exact): the list holds *every* pair with
+  ``d < cutoff + skin``, from the exact MLG query of :mod:`ase_mlg.query`.
+  Until some atom has moved more than ``skin / 2`` since the list was built,
+  no pair outside it can have come within the cutoff, so reusing it is exact.
+* ``template=W`` (odd int): the list holds the pairs with
+  ``d < cutoff + skin`` found in Boris's W x W x W half template
+  (DESIGN 2.6).  Fast and approximate: the pairs the template misses are the
+  price, and :mod:`ase_mlg.tradeoff` measures it.
+
+When the list expires the grid is repaired by swap sweeps
+(``MLG.update``), not rebuilt; it is rebuilt only when the number of atoms,
+the cell or pbc change, or the sweep cap is hit.  Distance vectors are
+recomputed every call from the current positions and the list's cell shifts,
+``D = positions[j] - positions[i] + S @ cell``, exactly as ASE does.
+
+Statistics (list builds, grid rebuilds, sweeps, swaps, pairs evaluated) are
+in ``calc.stats``.
+"""
+
+import numpy as np
+from ase.calculators.calculator import Calculator, all_changes
+from ase.stress import full_3x3_to_voigt_6_stress
+
+from .geometry import as_positions
+from .grid import MLG, template_pairs
+from .potentials import PairPotential
+
+__all__ = ["MLGCalculator"]
+
+
+def _exact_half_pairs(grid, cutoff):
+    """Every pair with d < cutoff once: (i, j, S)."""
+    from .query import BlockIndex, find_pairs
+    index = BlockIndex(grid)
+    res = find_pairs(index, np.full(grid.natoms, cutoff), cut=cutoff,
+                     half=True, quantities="ijS")
+    return res["i"], res["j"], res["S"]
+
+
+class MLGCalculator(Calculator):
+    """Pair-potential calculator on a Monotonic Logical Grid.
+
+    Parameters
+    ----------
+    potential : ase_mlg.potentials.PairPotential
+        E.g. ``LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5)``.
+    template : None or odd int
+        ``None`` for exact pair sums; W for Boris's W x W x W template.
+    skin : float
+        Verlet skin (Å).  The pair list is rebuilt when an atom has moved
+        more than ``skin / 2``; 0 rebuilds it every call.
+    grid_kwargs : dict, optional
+        Passed to :class:`~ase_mlg.grid.MLG` (``method``, ``sweep_cap``, ...).
+
+    Notes
+    -----
+    Properties: ``energy``, ``free_energy``, ``energies`` (eV),
+    ``forces`` (eV/Å), ``stress`` and ``stresses`` (Voigt, eV/Å^3, ASE's
+    sign), the last two only when the cell has three dimensions, as in
+    ``ase.calculators.lj.LennardJones``.
+    """
+
+    implemented_properties = ["energy", "free_energy", "energies", "forces",
+                              "stress", "stresses"]
+    nolabel = True
+
+    def __init__(self, potential, template=None, skin=0.3, grid_kwargs=None,
+                 **kwargs):
+        if not isinstance(potential, PairPotential):
+            raise TypeError("potential: expected an ase_mlg.potentials."
+                            f"PairPotential, got {type(potential).__name__}")
+        if template is not None:
+            if isinstance(template, bool) or not isinstance(template, (int, np.integer)) \
+                    or template < 1 or template % 2 == 0:
+                raise ValueError("template: None (exact) or an odd positive int, "
+                                 f"got {template!r}")
+            template = int(template)
+        skin = float(skin)
+        if not np.isfinite(skin) or skin < 0:
+            raise ValueError(f"skin: must be finite and >= 0, got {skin}")
+        Calculator.__init__(self, **kwargs)
+        self.potential = potential
+        self.template = template
+        self.skin = skin
+        self.grid_kwargs = dict(grid_kwargs or {})
+        self.grid = None
+        self._list = None
+        self.stats = {"calls": 0, "list_builds": 0, "grid_builds": 0,
+                      "sweeps": 0, "swaps": 0, "grid_rebuilds": 0,
+                      "pairs": 0}
+
+    def reset(self):
+        Calculator.reset(self)
+        self.grid = None
+        self._list = None
+
+    # -- the pair list ------------------------------------------------------
+    def _fresh_grid(self, atoms, positions):
+        if (self.grid is None or self.grid.natoms != len(atoms)
+                or not np.array_equal(self.grid.box.cell, atoms.cell.array)
+                or not np.array_equal(self.grid.box.pbc, atoms.pbc)):
+            self.grid = MLG(positions, atoms.cell.array, atoms.pbc,
+                            **self.grid_kwargs)
+            self.stats["grid_builds"] += 1
+            return True
+        return False
+
+    def _build_list(self, atoms, positions):
+        if not self._fresh_grid(atoms, positions):
+            rec = self.grid.update(positions)
+            self.stats["sweeps"] += rec["sweeps"]
+            self.stats["swaps"] += rec["swaps"]
+            self.stats["grid_rebuilds"] += int(rec["rebuilt"])
+        rlist = self.potential.cutoff + self.skin
+        if self.template is None:
+            i, j, S = _exact_half_pairs(self.grid, rlist)
+        else:
+            i, j, S, _ = template_pairs(self.grid, self.template, rlist)
+        self._list = (i, j, S.astype(np.float64), positions.copy())
+        self.stats["list_builds"] += 1
+
+    def _list_valid(self, positions):
+        if self._list is None or self.skin == 0.0:
+            return False
+        moved = positions - self._list[3]
+        return float(np.einsum("ij,ij->i", moved, moved).max(initial=0.0)) \
+            < (0.5 * self.skin) ** 2
+
+    # -- ASE interface ------------------------------------------------------
+    def calculate(self, atoms=None, properties=("energy",),
+                  system_changes=all_changes):
+        Calculator.calculate(self, atoms, properties, system_changes)
+        atoms = self.atoms
+        positions = as_positions(atoms.positions)
+        if self._list is not None and (
+                "numbers" in system_changes or "cell" in system_changes
+                or "pbc" in system_changes
+                or len(positions) != len(self._list[3])):
+            self._list = None
+        if not self._list_valid(positions):
+            self._build_list(atoms, positions)
+        i, j, S, _ = self._list
+        cell = atoms.cell.array
+        D = positions[j] - positions[i] + S @ cell
+        res = self.potential.evaluate(atoms.numbers, i, j, D)
+        self.stats["calls"] += 1
+        self.stats["pairs"] += len(i)
+        self.results["energy"] = res["energy"]
+        self.results["free_energy"] = res["energy"]
+        self.results["energies"] = res["energies"]
+        self.results["forces"] = res["forces"]
+        if atoms.cell.rank == 3:
+            volume = atoms.get_volume()
+            self.results["stress"] = full_3x3_to_voigt_6_stress(-res["virial"] / volume)
+            self.results["stresses"] = -res["virials_voigt"] / volume
