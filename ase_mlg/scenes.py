@@ -32,7 +32,7 @@ def random_points(natoms, density, seed=0):
                  cell=[L, L, L], pbc=True)
 
 
-def lj_liquid(natoms=4000, rho=0.8, jitter=0.1, seed=0):
+def lj_liquid(natoms=4000, rho=0.8, jitter=0.03, seed=0):
     """LJ argon at reduced density ``rho`` in a periodic cube: an fcc lattice
     (4 m^3 atoms) with random displacements of ``jitter`` sigma, the usual
     start of a liquid MD run (no overlapping atoms, unlike random points)."""
