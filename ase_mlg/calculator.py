@@ -29,7 +29,7 @@ from ase.stress import full_3x3_to_voigt_6_stress
 
 from .geometry import as_positions
 from .grid import MLG, template_pairs
-from .potentials import PairPotential
+from .potentials import PairPotential, pair_vectors
 
 __all__ = ["MLGCalculator"]
 
@@ -146,9 +146,9 @@ class MLGCalculator(Calculator):
         if not self._list_valid(positions):
             self._build_list(atoms, positions)
         i, j, S, _ = self._list
-        cell = atoms.cell.array
-        D = positions[j] - positions[i] + S @ cell
-        res = self.potential.evaluate(atoms.numbers, i, j, D)
+        D, d = pair_vectors(positions, i, j, S, np.ascontiguousarray(atoms.cell.array))
+        res = self.potential.evaluate(atoms.numbers, i, j, D, d,
+                                      per_atom_virials="stresses" in properties)
         self.stats["calls"] += 1
         self.stats["pairs"] += len(i)
         self.results["energy"] = res["energy"]
@@ -158,4 +158,5 @@ class MLGCalculator(Calculator):
         if atoms.cell.rank == 3:
             volume = atoms.get_volume()
             self.results["stress"] = full_3x3_to_voigt_6_stress(-res["virial"] / volume)
-            self.results["stresses"] = -res["virials_voigt"] / volume
+            if "virials_voigt" in res:
+                self.results["stresses"] = -res["virials_voigt"] / volume

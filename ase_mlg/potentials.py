@@ -100,14 +100,14 @@ def _kernel_signature(index):
         nbt.FunctionType(PAIR_SIGNATURE),
         index[::1], index[::1], f64[:, ::1], f64[::1],
         nbt.int32[::1], f64[:, :, ::1], f64[:, ::1], f64[:, ::1],
-        f64[::1], f64[:, ::1], f64[:, ::1],
+        f64[::1], f64[:, ::1], f64[::1], f64[:, ::1],
     )
 
 
 @numba.njit([_kernel_signature(nbt.int32), _kernel_signature(nbt.int64)],
             cache=True, nogil=True, error_model='numpy')
 def accumulate_pairs(pair, i, j, D, d, types, params, cutoffs, rmin,
-                     energies, forces, virials):
+                     energies, forces, virial, virials):
     """Accumulate a half pair list into energies, forces and virials.
 
     Low-level kernel behind :meth:`PairPotential.evaluate`; the output
@@ -132,9 +132,13 @@ def accumulate_pairs(pair, i, j, D, d, types, params, cutoffs, rmin,
         Per-atom energies, eV; each pair energy is split half/half.
     forces : float64[N, 3]
         eV/Å.
-    virials : float64[N, 6]
-        Per-atom virials in Voigt order (xx, yy, zz, yz, xz, xy), eV: half of
-        each pair's ``-D (x) dE/dD`` to each atom.
+    virial : float64[6]
+        Total virial in Voigt order (xx, yy, zz, yz, xz, xy), eV: the sum of
+        each pair's ``-D (x) dE/dD``.
+    virials : float64[N, 6] or float64[0, 6]
+        Per-atom virials, Voigt order, eV: half of each pair's virial to each
+        atom.  Pass an empty array to skip them (they cost as much as the
+        forces and MD does not need them).
 
     Returns
     -------
@@ -146,7 +150,11 @@ def accumulate_pairs(pair, i, j, D, d, types, params, cutoffs, rmin,
         Why that pair failed (one of the module's ``_BAD_*`` codes).
     """
     n = energies.shape[0]
+    per_atom = virials.shape[0] > 0
+    # Neumaier-compensated total: 10^7 pair energies of both signs would
+    # otherwise lose digits to rounding.
     energy = 0.0
+    comp = 0.0
     # Slicing a fresh row view for every pair costs reference counting; reuse
     # the last one while the type pair does not change.
     last_a, last_b = 0, 0
@@ -171,7 +179,12 @@ def accumulate_pairs(pair, i, j, D, d, types, params, cutoffs, rmin,
         e, dedr = pair(r, p)
         if not (math.isfinite(e) and math.isfinite(dedr)):
             return energy, k, _NON_FINITE
-        energy += e
+        t = energy + e
+        if abs(energy) >= abs(e):
+            comp += (energy - t) + e
+        else:
+            comp += (e - t) + energy
+        energy = t
         energies[a] += 0.5 * e
         energies[b] += 0.5 * e
         s = dedr / r
@@ -186,9 +199,33 @@ def accumulate_pairs(pair, i, j, D, d, types, params, cutoffs, rmin,
         # Central forces give a symmetric virial: six components suffice.
         w = (fx * dx, fy * dy, fz * dz, fy * dz, fx * dz, fx * dy)
         for c in range(6):
-            virials[a, c] -= 0.5 * w[c]
-            virials[b, c] -= 0.5 * w[c]
-    return energy, -1, _OK
+            virial[c] -= w[c]
+        if per_atom:
+            for c in range(6):
+                virials[a, c] -= 0.5 * w[c]
+                virials[b, c] -= 0.5 * w[c]
+    return energy + comp, -1, _OK
+
+
+@numba.njit(cache=True, parallel=True)
+def pair_vectors(positions, i, j, shifts, cell):
+    """``D = positions[j] - positions[i] + shifts @ cell`` and ``|D|``, the
+    vectors of a pair list with integer cell shifts, as ase.neighborlist
+    computes them (same operation order, so the same rounding)."""
+    m = i.shape[0]
+    D = np.empty((m, 3))
+    d = np.empty(m)
+    for k in numba.prange(m):
+        a = i[k]
+        b = j[k]
+        s0, s1, s2 = shifts[k, 0], shifts[k, 1], shifts[k, 2]
+        r2 = 0.0
+        for c in range(3):
+            x = positions[b, c] - positions[a, c] + (s0 * cell[0, c] + s1 * cell[1, c] + s2 * cell[2, c])
+            D[k, c] = x
+            r2 += x * x
+        d[k] = math.sqrt(r2)
+    return D, d
 
 
 # Voigt (N, 6) -> (N, 3, 3) by fancy indexing.
@@ -461,7 +498,7 @@ class PairPotential:
                 self.pair, np.zeros(0, np.int64), np.zeros(0, np.int64),
                 np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int32),
                 self.params, self.cutoffs, self.rmin, np.zeros(0),
-                np.zeros((0, 3)), np.zeros((0, 6)))
+                np.zeros((0, 3)), np.zeros(6), np.zeros((0, 6)))
         except (TypeError, numba.core.errors.NumbaError) as err:
             lines = [ln for ln in str(err).splitlines() if ln.strip()]
             detail = next((ln for ln in lines if not ln.startswith('Failed')),
@@ -510,7 +547,7 @@ class PairPotential:
                 f'{bad[0]}); this potential covers {", ".join(self.species)}')
         return types, self.params, self.cutoffs
 
-    def evaluate(self, numbers, i, j, D, d=None):
+    def evaluate(self, numbers, i, j, D, d=None, per_atom_virials=True):
         """Energy, forces and virials from a half pair list.
 
         Parameters
@@ -524,13 +561,16 @@ class PairPotential:
             Vector from atom ``i`` to (the image of) atom ``j``, Å.
         d : float array (M,), optional
             ``|D|``, Å; computed if not given (not checked if given).
+        per_atom_virials : bool
+            Also return ``virials`` and ``virials_voigt`` (costly; MD does
+            not need them).
 
         Returns
         -------
         dict
             ``energy`` (eV), ``energies`` (N,) eV, ``forces`` (N, 3) eV/Å,
-            ``virial`` (3, 3) eV, ``virials`` (N, 3, 3) eV and
-            ``virials_voigt`` (N, 6) eV.  The virial is
+            ``virial`` (3, 3) eV, and with ``per_atom_virials`` also
+            ``virials`` (N, 3, 3) eV and ``virials_voigt`` (N, 6) eV.  The virial is
             ``-sum_pairs D (x) dE/dD`` (``sum_i r_i (x) F_i`` for a finite
             system): ASE's stress is ``-virial / volume`` and ASE's per-atom
             ``stresses`` are ``-virials_voigt / volume``.
@@ -557,11 +597,12 @@ class PairPotential:
 
         energies = np.zeros(n)
         forces = np.zeros((n, 3))
-        voigt = np.zeros((n, 6))
+        voigt = np.zeros((n if per_atom_virials else 0, 6))
+        total = np.zeros(6)
         try:
             energy, bad, code = accumulate_pairs(
                 self.pair, i, j, D, d, types, params, cutoffs, self.rmin,
-                energies, forces, voigt)
+                energies, forces, total, voigt)
         except ArithmeticError as err:
             # Pair functions compiled with error_model='python' raise here;
             # find the pair in Python (error path only) to name it.
@@ -572,9 +613,12 @@ class PairPotential:
                                    err) from None
         if bad >= 0:
             raise self._pair_error(i, j, d, types, bad, code)
-        return {'energy': energy, 'energies': energies, 'forces': forces,
-                'virial': voigt.sum(axis=0)[_VOIGT_TO_3X3],
-                'virials': voigt[:, _VOIGT_TO_3X3], 'virials_voigt': voigt}
+        res = {'energy': energy, 'energies': energies, 'forces': forces,
+               'virial': total[_VOIGT_TO_3X3]}
+        if per_atom_virials:
+            res['virials'] = voigt[:, _VOIGT_TO_3X3]
+            res['virials_voigt'] = voigt
+        return res
 
     def _find_raising_pair(self, i, j, d, types):
         for k in range(len(i)):

@@ -5,7 +5,7 @@ import pytest
 from ase.calculators.calculator import PropertyNotImplementedError
 from ase.calculators.lj import LennardJones as AseLJ
 from ase.calculators.morse import MorsePotential as AseMorse
-from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
+from ase.md.velocitydistribution import thermalize_momenta
 from ase.md.verlet import VelocityVerlet
 from ase import units
 
@@ -110,7 +110,7 @@ def test_forces_are_minus_energy_gradient_and_stress_is_strain_derivative():
 
 def test_md_reuses_grid_and_list_and_stays_exact():
     atoms = scene("liquid", 500)
-    MaxwellBoltzmannDistribution(atoms, temperature_K=120, rng=np.random.default_rng(0))
+    thermalize_momenta(atoms, temperature_K=120, rng=np.random.default_rng(0))
     ref = atoms.copy()
     pot = LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5)
     atoms.calc = MLGCalculator(pot, skin=0.5)
