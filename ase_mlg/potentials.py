@@ -207,15 +207,8 @@ def accumulate_pairs(pair, i, j, D, d, types, params, cutoffs, rmin,
     return energy + comp, -1, _OK
 
 
-@numba.njit(cache=True, parallel=True)
-def pair_vectors(positions, i, j, shifts, cell):
-    """``D = positions[j] - positions[i] + shifts @ cell`` and ``|D|``, the
-    vectors of a pair list with integer cell shifts, as ase.neighborlist
-    computes them (same operation order, so the same rounding)."""
-    m = i.shape[0]
-    D = np.empty((m, 3))
-    d = np.empty(m)
-    for k in numba.prange(m):
+def _pair_vectors(positions, i, j, shifts, cell, D, d):
+    for k in numba.prange(i.shape[0]):
         a = i[k]
         b = j[k]
         s0, s1, s2 = shifts[k, 0], shifts[k, 1], shifts[k, 2]
@@ -225,6 +218,26 @@ def pair_vectors(positions, i, j, shifts, cell):
             D[k, c] = x
             r2 += x * x
         d[k] = math.sqrt(r2)
+
+
+# Threads pay off only on long lists; waking them costs more than a short
+# list.  Both compilations give identical results (independent pairs).
+_pair_vectors_serial = numba.njit(cache=True)(_pair_vectors)
+_pair_vectors_parallel = numba.njit(cache=True, parallel=True)(_pair_vectors)
+
+
+def pair_vectors(positions, i, j, shifts, cell):
+    """``D = positions[j] - positions[i] + shifts @ cell`` and ``|D|`` (Å) for
+    a pair list with cell shifts, in the operation order of
+    ``ase.neighborlist`` so the rounding is the same.
+
+    ``positions`` (N, 3) and ``cell`` (3, 3) float64, ``shifts`` (M, 3)
+    float64 (integer values), ``i``/``j`` int arrays (M,)."""
+    m = len(i)
+    D = np.empty((m, 3))
+    d = np.empty(m)
+    kernel = _pair_vectors_parallel if m > 200_000 else _pair_vectors_serial
+    kernel(positions, i, j, shifts, cell, D, d)
     return D, d
 
 
