@@ -331,7 +331,6 @@ def _monotone(coords, shape, periods):
     return True
 
 
-@njit(cache=True, parallel=True)
 def _follow(sites, coords, g_new, periods):
     """Move each site's stored coordinate by its atom's displacement, taking
     the minimum image on periodic axes so stored coordinates stay continuous
@@ -345,6 +344,9 @@ def _follow(sites, coords, g_new, periods):
             if periods[c] > 0.0:
                 d -= periods[c] * np.rint(d / periods[c])
             coords[s, c] += d
+
+
+_follow_serial, _follow_parallel = njit(cache=True)(_follow), njit(cache=True, parallel=True)(_follow)
 
 
 # --------------------------------------------------------------------------
@@ -676,7 +678,8 @@ class MLG:
             g = self.box.fractional(pos) * self.box.heights
             if not np.isfinite(g).all():
                 raise ValueError("positions: fractional coordinates overflow")
-            _follow(self._sites, self._coords, g, self._periods)
+            follow = _follow_parallel if self._sites.size >= PARALLEL_SITES else _follow_serial
+            follow(self._sites, self._coords, g, self._periods)
             sweeps, swaps, ok = _sweeps(self._sites, self._coords,
                                         np.array(self.shape), self._periods,
                                         self.sweep_cap)
