@@ -32,8 +32,12 @@ def run(atoms0, calc, steps, every=10):
     dyn = VelocityVerlet(atoms, DT_FS * units.fs)
     e = [atoms.get_total_energy()]
     t = time.perf_counter()
-    for _ in range(steps // every):
-        dyn.run(every)
+    for block in range(steps // every):
+        try:
+            dyn.run(every)
+        except ValueError as err:
+            # template misses let atoms run into each other: report, go on
+            raise RuntimeError(f"unstable after ~{block * every} steps: {err}") from None
         e.append(atoms.get_total_energy())
     elapsed = time.perf_counter() - t
     e = (np.array(e) - e[0]) / len(atoms)
@@ -48,6 +52,7 @@ def main(argv=None):
     p.add_argument("--natoms", type=int, default=500)
     p.add_argument("--smooth", action="store_true", help="ASE's smooth LJ cutoff")
     p.add_argument("--skip-ase", action="store_true")
+    p.add_argument("--widths", default="5,7,9", help="template widths to run")
     args = p.parse_args(argv)
     params = dict(sigma=3.405, epsilon=0.0104, rc=8.5, smooth=args.smooth)
     atoms = lj_liquid(args.natoms, rho=0.8, seed=7)
@@ -57,14 +62,18 @@ def main(argv=None):
     if not args.skip_ase:
         runs["ase LennardJones"] = AseLJ(**params)
     runs["mlg exact"] = MLGCalculator(LennardJones(**params), skin=1.0)
-    for w in (5, 7, 9):
+    for w in [int(x) for x in args.widths.split(",") if x]:
         runs[f"mlg W={w}"] = MLGCalculator(LennardJones(**params), template=w, skin=1.0)
     print(f"NVE LJ argon, {len(atoms)} atoms, {args.steps} steps of {DT_FS} fs "
           f"({args.steps * DT_FS / 1000:.0f} ps), smooth={args.smooth}")
     print(f"{'calculator':>18} {'drift eV/atom/ps':>17} {'max |dE| eV/atom':>17} "
           f"{'ms/step':>8} {'T_end K':>8}")
     for name, calc in runs.items():
-        slope, dmax, t, end = run(atoms, calc, args.steps)
+        try:
+            slope, dmax, t, end = run(atoms, calc, args.steps)
+        except RuntimeError as err:
+            print(f"{name:>18} {str(err)}")
+            continue
         print(f"{name:>18} {slope:+17.2e} {dmax:17.2e} {t * 1e3:8.2f} "
               f"{end.get_temperature():8.1f}")
 
