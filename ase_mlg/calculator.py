@@ -12,6 +12,10 @@ list built with a Verlet ``skin``:
   ``d < cutoff + skin`` found in Boris's W x W x W half template
   (DESIGN 2.6).  Fast and approximate: the pairs the template misses are the
   price, and :mod:`ase_mlg.tradeoff` measures it.
+* ``template="auto"``: W is the smallest width that meets ``tolerance``,
+  chosen and re-checked against the exact query by
+  :class:`ase_mlg.tradeoff.AutoTemplate` (see there for what is guaranteed
+  at the checks and what is not between them).
 
 When the list expires the grid is repaired by swap sweeps
 (``MLG.update``), not rebuilt; it is rebuilt only when the number of atoms,
@@ -50,8 +54,16 @@ class MLGCalculator(Calculator):
     ----------
     potential : ase_mlg.potentials.PairPotential
         E.g. ``LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5)``.
-    template : None or odd int
-        ``None`` for exact pair sums; W for Boris's W x W x W template.
+    template : None, odd int, "auto" or AutoTemplate
+        ``None`` for exact pair sums; W for Boris's W x W x W template;
+        ``"auto"`` to let :class:`ase_mlg.tradeoff.AutoTemplate` pick W
+        (pass an ``AutoTemplate(...)`` instance to set its ``widths`` or
+        ``check_every``).  ``calc.template`` is then the width in use
+        (None: exact) and ``calc.auto.history`` records every check.
+    tolerance : float or dict, optional
+        Only with ``template="auto"``: ``{"missed": fraction of
+        interacting pairs}`` and/or ``{"force": RMS force error, eV/Å}``; a
+        float is the missed fraction.  Default ``{"missed": 1e-4}``.
     skin : float
         Verlet skin (Å).  The pair list is rebuilt when an atom has moved
         more than ``skin / 2``; 0 rebuilds it every call.
@@ -71,10 +83,22 @@ class MLGCalculator(Calculator):
     nolabel = True
 
     def __init__(self, potential, template=None, skin=0.3, grid_kwargs=None,
-                 **kwargs):
+                 tolerance=None, **kwargs):
         if not isinstance(potential, PairPotential):
             raise TypeError("potential: expected an ase_mlg.potentials."
                             f"PairPotential, got {type(potential).__name__}")
+        # template="auto": a policy object picks W at list builds (imported
+        # here because ase_mlg.tradeoff imports this module)
+        from .tradeoff import AutoTemplate
+        self.auto = None
+        if isinstance(template, AutoTemplate):
+            if tolerance is not None:
+                raise ValueError("tolerance: set it on the AutoTemplate instance")
+            self.auto, template = template, None
+        elif isinstance(template, str) and template == "auto":
+            self.auto, template = AutoTemplate(tolerance), None
+        elif tolerance is not None:
+            raise ValueError("tolerance: only used with template='auto'")
         if template is not None:
             if isinstance(template, bool) or not isinstance(template, (int, np.integer)) \
                     or template < 1 or template % 2 == 0:
@@ -118,6 +142,8 @@ class MLGCalculator(Calculator):
             self.stats["swaps"] += rec["swaps"]
             self.stats["grid_rebuilds"] += int(rec["rebuilt"])
         rlist = self.potential.cutoff + self.skin
+        if self.auto is not None:
+            self.template = self.auto.choose(self.grid, self.potential, atoms.numbers)
         if self.template is None:
             i, j, S = _exact_half_pairs(self.grid, rlist)
         else:

@@ -1,6 +1,9 @@
 """The ``ase-mlg`` command line.
 
-``ase-mlg demo`` runs the package end to end on an embedded LJ argon liquid.
+``ase-mlg demo`` runs the package end to end on an embedded LJ argon liquid;
+``ase-mlg rdf`` computes radial distribution functions of trajectories
+(:mod:`ase_mlg.analysis`); ``ase-mlg tradeoff`` measures the template's
+speed/accuracy trade (:mod:`ase_mlg.tradeoff`).
 Errors in user input print one line and exit with status 2.
 """
 
@@ -143,19 +146,30 @@ def _positive_int(s):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog="ase-mlg", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="ase-mlg", description="Monotonic Logical Grid tools for ASE: demo, rdf, tradeoff")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("demo", help="run the package end to end on an embedded argon liquid")
     p.add_argument("--natoms", type=_positive_int, default=4000)
     p.add_argument("--steps", type=_positive_int, default=500)
     p.add_argument("--md-steps", type=int, default=200)
     p.add_argument("--seed", type=int, default=0)
+    # the subcommands of the analysis and trade-off modules
+    from .analysis import add_rdf_parser, run_rdf_command
+    from .tradeoff import add_tradeoff_parser, run_tradeoff_command
+    add_rdf_parser(sub)
+    add_tradeoff_parser(sub)
     args = parser.parse_args(argv)
     try:
         if args.command == "demo":
             demo(args.natoms, args.steps, args.seed, md_steps=args.md_steps)
+        elif args.command == "rdf":
+            run_rdf_command(args)
+        elif args.command == "tradeoff":
+            run_tradeoff_command(args)
     except (ValueError, TypeError, OSError) as exc:
-        print(f"ase-mlg {args.command}: error: {exc}", file=sys.stderr)
+        msg = " ".join(str(exc).split())  # one line, whatever the exception said
+        print(f"ase-mlg {args.command}: error: {msg}", file=sys.stderr)
         return 2
     return 0
 

@@ -132,7 +132,7 @@ def _parse_cutoff(cutoff, natoms, numbers):
             if z1 in pos and z2 in pos:
                 table[pos[z1], pos[z2]] = c
                 table[pos[z2], pos[z1]] = c
-        rat = table.max(axis=1)[types]
+        rat = table.max(axis=1)[types] if natoms else np.zeros(0)
         return CUT_TABLE, 0.0, None, types.astype(np.int64), table, rat
     if _is_scalar(cutoff):
         try:
@@ -251,7 +251,9 @@ def neighbor_list(quantities, a, cutoff, self_interaction=False,
     ``grid``: optionally an :class:`~ase_mlg.MLG` already updated to these
     atoms (see :func:`primitive_neighbor_list`).
     """
-    return primitive_neighbor_list(quantities, a.pbc, a.get_cell(complete=True),
+    # the raw cell: a periodic axis without a cell vector is an error here,
+    # where ASE would silently complete it with a 1 A unit vector
+    return primitive_neighbor_list(quantities, a.pbc, a.cell.array,
                                    a.positions, cutoff, numbers=a.numbers,
                                    self_interaction=self_interaction,
                                    max_nbins=max_nbins, grid=grid)
@@ -494,6 +496,7 @@ class NeighborList:
 
     def update(self, atoms):
         """Bring the list up to date with ``atoms``; True if it was rebuilt."""
+        Box(atoms.cell.array, atoms.pbc)  # ValueError on a zero-volume periodic cell
         return self.nl.update(atoms.pbc, atoms.get_cell(complete=True),
                               atoms.positions)
 

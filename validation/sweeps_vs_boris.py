@@ -23,7 +23,16 @@ from ase_mlg import MLG
 BORIS = {0.025: 2.85, 0.1: 4.0, 0.4: 5.0}
 
 
-def run(dl_max, steps, seed, n=8):
+def simulate(dl_max, steps, seed, n=8, hole_plane=False):
+    """Boris's free-flight test, one step at a time.
+
+    Yields ``(positions, grid, record)`` after every step: positions in units
+    of the initial spacing (unwrapped in x and y), the MLG that followed
+    them, and its ``update`` record.  ``hole_plane=True`` adds a ninth plane
+    of n^2 holes, as in Boris's second Fig. 4.1 run (his holes move to the
+    mean of their six logical neighbours; ours keep their coordinates and
+    are only moved by swaps).
+    """
     rng = np.random.default_rng(seed)
     spacing = 1.0
     L = n * spacing
@@ -31,8 +40,8 @@ def run(dl_max, steps, seed, n=8):
                 .reshape(-1, 3) + 0.5) * spacing
     x = grid_pts.copy()
     v = rng.uniform(-1, 1, x.shape) * dl_max * spacing
-    grid = MLG(x, [L, L, L], (True, True, False), shape=(n, n, n))
-    sweeps = []
+    shape = (n, n, n + 1) if hole_plane else (n, n, n)
+    grid = MLG(x, [L, L, L], (True, True, False), shape=shape)
     for _ in range(steps):
         x = x + v
         # reflecting walls in z
@@ -41,8 +50,15 @@ def run(dl_max, steps, seed, n=8):
         x[high, 2] = 2 * L - x[high, 2]
         v[low | high, 2] *= -1
         rec = grid.update(x)
+        yield x, grid, rec
+
+
+def run(dl_max, steps, seed, n=8):
+    """Sweeps per step of one run, and the number of grid rebuilds."""
+    sweeps, grid = [], None
+    for _, grid, rec in simulate(dl_max, steps, seed, n):
         sweeps.append(rec["sweeps"])
-    return np.array(sweeps), grid.stats["rebuilds"]
+    return np.array(sweeps), grid.stats["rebuilds"] if grid else 0
 
 
 def main(argv=None):
