@@ -171,6 +171,12 @@ def grid_shape(extent, periodic, natoms):
     if n <= 1:
         return (n, n, n)
     extent = np.asarray(extent, dtype=np.float64)
+    # only ratios matter: work in units of the largest extent, so that the
+    # bisection is well conditioned at any length scale (1e-200 Å or 1e6 Å),
+    # and call an axis flat when it is a billionth of the largest
+    scale = float(extent.max()) if extent.size else 0.0
+    extent = extent / scale if scale > 0 else np.zeros(3)
+    extent[extent < 1e-9] = 0.0
     # an axis with no extent holds one layer whatever its pbc
     c = np.where(np.asarray(periodic) & (extent > 0), 0.0, 1.0)
     if not (extent > 0).any():
@@ -180,7 +186,7 @@ def grid_shape(extent, periodic, natoms):
     else:
         def count(d):
             return np.prod(extent / d + c)
-        lo, hi = 1e-12 * extent.max(), 10.0 * extent.max()
+        lo, hi = 1e-12, 10.0
         for _ in range(200):  # bisection in log space: count(d) is decreasing
             mid = np.sqrt(lo * hi)
             if count(mid) > n:

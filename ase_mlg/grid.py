@@ -390,10 +390,12 @@ def half_template(width, shape, pbc):
 
 
 @njit(cache=True, parallel=True)
-def _template_scan(sites, shape, pbc, offsets, selfinv, positions, frac,
+def _template_scan(sites, shape, pbc, offsets, selfinv, sp, sf,
                    cell, cutoff, counts, out_i, out_j, out_S, out_D, start,
                    fill):
-    """For every site, walk the half template and keep pairs with d < cutoff
+    """``sp``/``sf``: Cartesian/fractional positions in *site* order, so the
+    template walk reads memory near the site instead of jumping by atom
+    index.  For every site, walk the half template and keep pairs with d < cutoff
     (minimum image on periodic axes).  Run twice: ``fill=False`` counts pairs
     per site, ``fill=True`` writes them at ``start[s]``; the output order is
     fixed by the site order, so the parallel and serial runs agree."""
@@ -412,18 +414,21 @@ def _template_scan(sites, shape, pbc, offsets, selfinv, positions, frac,
             ti = i + offsets[o, 0]
             tj = j + offsets[o, 1]
             tk = k + offsets[o, 2]
-            if pbc[0]:
-                ti %= nx
-            elif ti < 0 or ti >= nx:
-                continue
-            if pbc[1]:
-                tj %= ny
-            elif tj < 0 or tj >= ny:
-                continue
-            if pbc[2]:
-                tk %= nz
-            elif tk < 0 or tk >= nz:
-                continue
+            if ti < 0 or ti >= nx:
+                if not pbc[0]:
+                    continue
+                # offsets are at most one period: no division needed
+                ti += nx if ti < 0 else -nx
+            if tj < 0 or tj >= ny:
+                if not pbc[1]:
+                    continue
+                # offsets are at most one period: no division needed
+                tj += ny if tj < 0 else -ny
+            if tk < 0 or tk >= nz:
+                if not pbc[2]:
+                    continue
+                # offsets are at most one period: no division needed
+                tk += nz if tk < 0 else -nz
             t = (ti * ny + tj) * nz + tk
             b = sites[t]
             if b < 0 or (selfinv[o] and t <= s):
@@ -432,14 +437,14 @@ def _template_scan(sites, shape, pbc, offsets, selfinv, positions, frac,
             S1 = 0.0
             S2 = 0.0
             if pbc[0]:
-                S0 = -np.rint(frac[b, 0] - frac[a, 0])
+                S0 = -np.rint(sf[t, 0] - sf[s, 0])
             if pbc[1]:
-                S1 = -np.rint(frac[b, 1] - frac[a, 1])
+                S1 = -np.rint(sf[t, 1] - sf[s, 1])
             if pbc[2]:
-                S2 = -np.rint(frac[b, 2] - frac[a, 2])
-            dx = positions[b, 0] - positions[a, 0] + S0 * cell[0, 0] + S1 * cell[1, 0] + S2 * cell[2, 0]
-            dy = positions[b, 1] - positions[a, 1] + S0 * cell[0, 1] + S1 * cell[1, 1] + S2 * cell[2, 1]
-            dz = positions[b, 2] - positions[a, 2] + S0 * cell[0, 2] + S1 * cell[1, 2] + S2 * cell[2, 2]
+                S2 = -np.rint(sf[t, 2] - sf[s, 2])
+            dx = sp[t, 0] - sp[s, 0] + S0 * cell[0, 0] + S1 * cell[1, 0] + S2 * cell[2, 0]
+            dy = sp[t, 1] - sp[s, 1] + S0 * cell[0, 1] + S1 * cell[1, 1] + S2 * cell[2, 1]
+            dz = sp[t, 2] - sp[s, 2] + S0 * cell[0, 2] + S1 * cell[1, 2] + S2 * cell[2, 2]
             r2 = dx * dx + dy * dy + dz * dz
             if r2 >= rc2:
                 continue
@@ -489,13 +494,15 @@ def template_pairs(grid, width, cutoff):
     shape = np.array(grid.shape, dtype=np.int64)
     sites = grid.sites.reshape(-1)
     pbc = grid.box.pbc.copy()
-    frac = grid.box.fractional(grid.positions)
+    occ = sites >= 0
+    sp = np.zeros((sites.size, 3))
+    sp[occ] = grid.positions[sites[occ]]
+    sf = grid.box.fractional(sp)
     counts = np.zeros(sites.size, dtype=np.int64)
     e_i = np.empty(0, np.int64)
     e_S = np.empty((0, 3), np.int64)
     e_D = np.empty((0, 3))
-    args = (sites, shape, pbc, offsets, selfinv, grid.positions, frac,
-            grid.box.cell, cutoff)
+    args = (sites, shape, pbc, offsets, selfinv, sp, sf, grid.box.cell, cutoff)
     _template_scan(*args, counts, e_i, e_i, e_S, e_D, counts, False)
     start = np.zeros(sites.size, dtype=np.int64)
     np.cumsum(counts[:-1], out=start[1:])

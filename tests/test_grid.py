@@ -360,3 +360,16 @@ def test_periodic_run_stays_flat():
     assert late < 1.15 * early + 0.2, (early, late)
     assert min(shares) > 0.985 and shares[-1] > shares[0] - 0.005, shares
     assert grid.stats["rebuilds"] == 0
+
+
+@pytest.mark.parametrize("scale", [1e-200, 1e-9, 1.0, 1e6])
+def test_shape_at_any_length_scale(scale):
+    """The grid shape depends on extent ratios only (a 1e-200 Å extent once
+    hung the bisection)."""
+    rng = np.random.default_rng(0)
+    x = rng.random((500, 3)) * [4, 2, 1] * scale
+    grid = MLG(x)
+    check_valid(grid, 500)
+    assert grid.shape == MLG(x / scale).shape
+    tiny = np.array([[0, 0, 0], [0, 0, 1e-200]])
+    check_valid(MLG(tiny, np.eye(3) * 0.7, False), 2)
