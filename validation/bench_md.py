@@ -65,7 +65,7 @@ def tools(n):
         out["vesin+numba"] = VesinNumba
     except ImportError:
         pass
-    out["mlg exact skin0.3"] = lambda: MLGCalculator(pot)
+    out["mlg exact skin0.3"] = lambda: MLGCalculator(pot, skin=0.3)
     out["mlg exact skin1.0"] = lambda: MLGCalculator(pot, skin=1.0)
     out["mlg W=7 skin1.0"] = lambda: MLGCalculator(pot, template=7, skin=1.0)
     return out
