@@ -71,7 +71,11 @@ class Box:
         pbc = np.broadcast_to(np.asarray(pbc, dtype=bool), (3,)).copy()
         if cell is None:
             cell = np.zeros((3, 3))
-        cell = np.asarray(cell, dtype=np.float64)
+        cell = np.asarray(cell)
+        if cell.dtype == object or np.iscomplexobj(cell) or not (
+                np.issubdtype(cell.dtype, np.number) or cell.dtype == bool):
+            raise TypeError(f"cell: expected a real numeric array, got dtype {cell.dtype}")
+        cell = cell.astype(np.float64)
         if cell.shape == (3,):
             cell = np.diag(cell)
         if cell.shape != (3, 3):

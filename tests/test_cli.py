@@ -36,3 +36,7 @@ def test_demo_md_agrees_with_ase():
     assert rel < 1e-10
     drift = float(text.split("total energy drift ")[1].split()[0])
     assert abs(drift) < 1e-4
+    # the demo validates its own trajectory against MDAnalysis and ASE
+    assert "identical to MDAnalysis InterRDF" in text
+    assert "identical to ase.neighborlist.NeighborList" in text
+    assert text.rstrip().endswith("verdict: PASS")
