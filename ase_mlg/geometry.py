@@ -68,7 +68,11 @@ class Box:
     """
 
     def __init__(self, cell=None, pbc=False):
-        pbc = np.broadcast_to(np.asarray(pbc, dtype=bool), (3,)).copy()
+        pbc_arr = np.asarray(pbc)
+        if pbc_arr.dtype == object or pbc_arr.dtype.kind not in "biuf" \
+                or pbc_arr.shape not in ((), (3,)):
+            raise ValueError(f"pbc: expected a bool or 3 bools, got {pbc!r}")
+        pbc = np.broadcast_to(pbc_arr.astype(bool), (3,)).copy()
         if cell is None:
             cell = np.zeros((3, 3))
         cell = np.asarray(cell)

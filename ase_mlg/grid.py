@@ -389,7 +389,6 @@ def half_template(width, shape, pbc):
             np.ascontiguousarray((kd == kn)[keep]))
 
 
-@njit(cache=True, parallel=True)
 def _template_scan(sites, shape, pbc, offsets, selfinv, sp, sf,
                    cell, cutoff, counts, out_i, out_j, out_S, out_D, start,
                    fill):
@@ -463,6 +462,10 @@ def _template_scan(sites, shape, pbc, offsets, selfinv, sp, sf,
             counts[s] = cnt
 
 
+_template_scan_serial = njit(cache=True)(_template_scan)
+_template_scan_parallel = njit(cache=True, parallel=True)(_template_scan)
+
+
 def template_pairs(grid, width, cutoff):
     """Pairs within ``cutoff`` found in the W x W x W half template.
 
@@ -503,7 +506,8 @@ def template_pairs(grid, width, cutoff):
     e_S = np.empty((0, 3), np.int64)
     e_D = np.empty((0, 3))
     args = (sites, shape, pbc, offsets, selfinv, sp, sf, grid.box.cell, cutoff)
-    _template_scan(*args, counts, e_i, e_i, e_S, e_D, counts, False)
+    scan = _template_scan_parallel if sites.size >= PARALLEL_SITES else _template_scan_serial
+    scan(*args, counts, e_i, e_i, e_S, e_D, counts, False)
     start = np.zeros(sites.size, dtype=np.int64)
     np.cumsum(counts[:-1], out=start[1:])
     m = int(counts.sum())
@@ -511,13 +515,39 @@ def template_pairs(grid, width, cutoff):
     j = np.empty(m, np.int64)
     S = np.empty((m, 3), np.int64)
     D = np.empty((m, 3))
-    _template_scan(*args, counts, i, j, S, D, start, True)
+    scan(*args, counts, i, j, S, D, start, True)
     return i, j, S, D
 
 
 # --------------------------------------------------------------------------
 # the grid object
 # --------------------------------------------------------------------------
+
+# Periodic coordinates further than this many cells from the cell cannot be
+# wrapped to better than ~2**36 * 2**-52 = 1.5e-5 of a cell; beyond it the exact
+# query was measured to fail (MemoryError at 1e11 cells), so refuse clearly.
+MAX_CELLS = 2.0 ** 36
+
+
+def _check_fractional(frac, pbc):
+    bad = ~np.isfinite(frac).all(axis=1)
+    if pbc.any():
+        bad |= (np.abs(frac[:, pbc]) > MAX_CELLS).any(axis=1)
+    if bad.any():
+        idx = np.flatnonzero(bad)
+        raise ValueError(
+            f"positions: atom(s) {idx[:10].tolist()}{' ...' if len(idx) > 10 else ''} "
+            f"are more than 2**36 (7e10) cells from the cell (or overflow); they cannot "
+            f"be wrapped without losing precision -- wrap them (atoms.wrap()) first")
+
+
+def _int_arg(name, value, minimum):
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer, float, np.floating)):
+        raise TypeError(f"{name}: expected an int, got {value!r}")
+    if not np.isfinite(value) or int(value) != value or value < minimum:
+        raise ValueError(f"{name}: must be an int >= {minimum}, got {value!r}")
+    return int(value)
+
 
 class MLG:
     """A Monotonic Logical Grid of atoms (Boris 1985).
@@ -561,15 +591,21 @@ class MLG:
     def __init__(self, positions, cell=None, pbc=False, method="kd",
                  shape=None, sweep_cap=64, monitor_every=10,
                  max_phase_lag=1.5):
-        if method not in _METHODS:
+        if not isinstance(method, str) or method not in _METHODS:
             raise ValueError(f"method: expected 'kd' or 'sort', got {method!r}")
-        if int(sweep_cap) < 1:
-            raise ValueError(f"sweep_cap: must be >= 1, got {sweep_cap}")
+        sweep_cap = _int_arg("sweep_cap", sweep_cap, 1)
+        monitor_every = _int_arg("monitor_every", monitor_every, 0)
+        try:
+            max_phase_lag = float(max_phase_lag)
+        except (TypeError, ValueError):
+            raise TypeError(f"max_phase_lag: expected a number, got {max_phase_lag!r}") from None
+        if not max_phase_lag > 0:  # also NaN
+            raise ValueError(f"max_phase_lag: must be > 0, got {max_phase_lag}")
         self.method = method
         self.box = Box(cell, pbc)
-        self.sweep_cap = int(sweep_cap)
-        self.monitor_every = int(monitor_every)
-        self.max_phase_lag = float(max_phase_lag)
+        self.sweep_cap = sweep_cap
+        self.monitor_every = monitor_every
+        self.max_phase_lag = max_phase_lag
         self._forced_shape = None if shape is None else tuple(int(s) for s in shape)
         self.stats = {"updates": 0, "sweeps": 0, "swaps": 0, "rebuilds": 0,
                       "last": None}
@@ -583,9 +619,7 @@ class MLG:
     # -- construction -----------------------------------------------------
     def _grid_coordinates(self, positions):
         frac = self.box.fractional(positions)
-        if not np.isfinite(frac).all():
-            raise ValueError("positions: fractional coordinates overflow "
-                             "(atoms too far from the cell)")
+        _check_fractional(frac, self.box.pbc)
         self._origin = wrap_origins(frac, self.box.pbc)
         for a in range(3):
             if self.box.pbc[a]:
@@ -682,9 +716,9 @@ class MLG:
         self.positions = pos.copy()
         rec = {"sweeps": 0, "swaps": 0, "rebuilt": False, "reason": None}
         if self.natoms:
-            g = self.box.fractional(pos) * self.box.heights
-            if not np.isfinite(g).all():
-                raise ValueError("positions: fractional coordinates overflow")
+            frac = self.box.fractional(pos)
+            _check_fractional(frac, self.box.pbc)
+            g = frac * self.box.heights
             follow = _follow_parallel if self._sites.size >= PARALLEL_SITES else _follow_serial
             follow(self._sites, self._coords, g, self._periods)
             sweeps, swaps, ok = _sweeps(self._sites, self._coords,

@@ -67,8 +67,8 @@ def dilute_gas(natoms=1000, rho=0.05, seed=0):
 
 def nanoparticle(natoms=1000, a=3.61):
     """An fcc copper octahedron in vacuum, ``pbc=False``, no cell."""
-    # an octahedron of length l holds about l^3 / 3 atoms
-    length = max(2, int(round((3 * natoms) ** (1 / 3))))
+    # an fcc octahedron of length l holds about 2 l^3 / 3 atoms
+    length = max(2, int(round((1.5 * natoms) ** (1 / 3))))
     atoms = Octahedron("Cu", length, cutoff=0, latticeconstant=a)
     atoms.cell = np.zeros((3, 3))
     atoms.pbc = False
