@@ -224,7 +224,7 @@ def test_auto_rechecks_every_k_builds_when_density_changes():
     # a nanoparticle compressed in place: same grid (sweeps follow the atoms),
     # so only the every-K check can notice; between checks the tolerance may
     # be broken (the documented gap), at the next check it must hold again
-    atoms = scene("nanoparticle", 300, rattle=0.05)
+    atoms = scene("nanoparticle", 670, rattle=0.05)  # octahedron of length 10
     pot = potential_for("nanoparticle")
     k = 3
     tol = tolerance_between(atoms, 9, pot, 1.1)
