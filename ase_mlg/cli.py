@@ -193,21 +193,37 @@ def validate_trajectory(frames, say):
         raise RuntimeError("demo validation failed: see above")
 
 
-def _positive_int(s):
-    v = int(s)
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
-    return v
+def _int_at_least(minimum):
+    def parse(s):
+        try:
+            v = int(s)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {s!r}") from None
+        if v < minimum:
+            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {v}")
+        return v
+    return parse
+
+
+_positive_int = _int_at_least(1)
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (no usage block): a CLI error is one
+    line on stderr and exit status 2, like every other error here."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="ase-mlg", description="Monotonic Logical Grid tools for ASE: demo, rdf, tradeoff")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("demo", help="run the package end to end on an embedded argon liquid")
     p.add_argument("--natoms", type=_positive_int, default=4000)
     p.add_argument("--steps", type=_positive_int, default=500)
-    p.add_argument("--md-steps", type=int, default=200)
+    p.add_argument("--md-steps", type=_int_at_least(0), default=200)
     p.add_argument("--seed", type=int, default=0)
     # the subcommands of the analysis and trade-off modules
     from .analysis import add_rdf_parser, run_rdf_command

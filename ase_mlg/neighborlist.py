@@ -284,7 +284,11 @@ class _MLGPrimitive:
                  bothways=False, use_scaled_positions=False):
         skin = float(skin)
         _check_value(skin, "skin")
-        r = np.asarray(cutoffs, dtype=np.float64).reshape(-1)
+        try:
+            r = np.asarray(cutoffs, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            raise TypeError(f"cutoffs: expected a list of radii in Å, got "
+                            f"{cutoffs!r}") from None
         bad = np.flatnonzero(~np.isfinite(r) | (r < 0))
         if bad.size:
             raise ValueError(f"cutoffs: radii must be finite and >= 0; bad for "

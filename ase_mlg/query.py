@@ -804,6 +804,7 @@ def _emit_half(buf, nbuf, off, slot_atom, Q, MS, cell, out_i, out_j, out_d,
 
 
 _POOL = [None, 0]
+MAX_IMAGES = 1e7  # periodic images per query: 2 rc / h + 1 per axis
 PARALLEL_MIN_ATOMS = 5000  # below this, thread hand-offs cost more than they save
 
 
@@ -869,6 +870,15 @@ def find_pairs(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     table = np.zeros((1, 1)) if table is None else np.ascontiguousarray(table, dtype=np.float64)
     Q, rs, ts = _slot_values(index.slot_atom, index.positions, radii, types, int(mode))
     rmax = float(rat.max())
+    # every periodic image within rmax is visited: refuse a cutoff that
+    # would need more images than any computer can list, instead of hanging
+    per = index.periods > 0
+    if per.any():
+        with np.errstate(over="ignore"):
+            images = np.prod(2.0 * rmax / index.periods[per] + 1.0)
+        if not images < MAX_IMAGES:
+            raise ValueError(f"cutoff: {rmax:.6g} Å reaches ~{images:.3g} periodic "
+                             f"images of the cell (limit {MAX_IMAGES:.0e})")
     # round-off only ever adds candidates: pad the grid-space boxes by the
     # measured deviation of stored coordinates plus a relative margin; the
     # fast distance decides only pairs farther than ftol from the cutoff
@@ -961,7 +971,8 @@ def _find_store(index, rat, Q, rs, ts, table, mode, cut, pad, ftol,
     chunks = np.linspace(0, nblk, nchunk + 1).astype(np.int64)
     cur = np.zeros((1, 1) if half else (nchunk, n), dtype=np.int64)
     # scratch guess: half the pairs of a uniform system, grown on demand
-    cap = int(8 + 0.6 * float(np.mean(rat)) ** 3 * 4.19 * n
+    # (the radius is capped so that an absurd cutoff cannot overflow the guess)
+    cap = int(8 + 0.6 * min(float(np.mean(rat)), 1e6) ** 3 * 4.19 * n
               / max(index.volume, 1e-300) * n / 2 / nchunk)
     cap = min(cap, 4 * n * 64 // nchunk + 64)
     args = (index.nb, bsz, index.slot_atom, index.P, Q, index.G, index.MS,
