@@ -298,14 +298,14 @@ def g_planar_linear():
 def _step_sweep(step):
     at = ar_liquid(256, seed=8)
     spacing = (at.get_volume() / len(at)) ** (1 / 3)
-    grid = MLG.from_atoms(at, sweep_cap=16)
+    grid = MLG.from_atoms(at, sweep_cap=4)  # small cap: large steps must rebuild
     calc = MLGCalculator(lj_pair(), skin=0.3)
     rng = np.random.default_rng(9)
     worst = 0
     for _ in range(4):
         at.positions += rng.normal(0, step * spacing / math.sqrt(3), at.positions.shape)
         rec = grid.update(at.positions)
-        assert rec["sweeps"] <= 16, "sweeps exceeded the cap"
+        assert rec["sweeps"] <= 4, "sweeps exceeded the cap"
         assert grid.is_monotone(), "grid not monotone after update"
         worst = max(worst, rec["sweeps"])
         compare_calc(at, calc, rtol=1e-9)
@@ -318,7 +318,8 @@ def d_steps():
     for step in (1e-6, 1e-3, 0.1, 0.5, 1.0, 3.0):
         sw, rb = _step_sweep(step)
         out.append(f"{step:g}:{sw}sw/{rb}rb")
-    return "pass (max sweeps/rebuilds per size: " + ", ".join(out) + ")"
+    return ("pass (sweep_cap 4; per step size: max sweeps / rebuilds in 4 steps: "
+            + ", ".join(out) + ")")
 
 
 @check("dynamics", "crystal melting (fcc, random displacements growing to 2 A)")
@@ -461,9 +462,11 @@ def nve_drift(dt_fs, steps=200, n=256, seed=16):
     for _ in range(steps):
         dyn.run(1)
         e = at.get_total_energy()
-        if not np.isfinite(e):
-            return float("inf")
         worst = max(worst, abs(e - e0))
+        if not np.isfinite(e) or worst > 0.1 * len(at):
+            # blown up (> 0.1 eV/atom): stop before atoms fly 1e12 A away,
+            # where neighbor_list hangs (see the xfail in tests/test_extremes.py)
+            return float("inf")
     return worst / len(at)
 
 
@@ -478,7 +481,69 @@ def a_nve():
     stable = [dt for dt, x in rows if x < 1e-3]
     return ("pass (max |E - E0| per atom over 100 steps: "
             + ", ".join(f"{dt:g} fs {x:.1e} eV" for dt, x in rows)
-            + f"; largest dt with drift < 1 meV/atom: {max(stable):g} fs)")
+            + f"; largest dt with drift < 1 meV/atom: {max(stable):g} fs; "
+            "inf = blew up, > 0.1 eV/atom)")
+
+
+FAR_SCRIPT = r'''
+import numpy as np
+from ase import Atoms
+from ase.neighborlist import neighbor_list as anl
+from ase_mlg import neighbor_list
+rng = np.random.default_rng(0)
+at = Atoms("Ar20", positions=rng.normal(0, SCALE, (20, 3)), cell=[10, 10, 10], pbc=True)
+a = sorted(zip(*anl("ij", at, 5.0)))
+b = sorted(zip(*neighbor_list("ij", at, 5.0)))
+assert a == b, "pairs differ from ASE"
+print(len(a))
+'''
+
+
+def far_atoms(scale, timeout=20):
+    """neighbor_list of 20 atoms ~scale A from a 10 A periodic cell, in a
+    subprocess (timeout, 2 GB address-space limit)."""
+    code = ("import resource; resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))\n"
+            + FAR_SCRIPT.replace("SCALE", repr(float(scale))))
+    env = dict(os.environ, OMP_NUM_THREADS="1", NUMBA_NUM_THREADS="1")
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
+    try:
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True,
+                           text=True, timeout=timeout, env=env)
+    except subprocess.TimeoutExpired:
+        raise AssertionError(f"hang: neighbor_list not done in {timeout} s") from None
+    last = r.stderr.strip().splitlines()[-1] if r.stderr.strip() else "crash"
+    if r.returncode != 0 and last.startswith("ValueError: positions: atom(s)"):
+        return "clear error: " + last[:120]
+    assert r.returncode == 0, last
+    return f"pass ({int(r.stdout.split()[-1])} pairs == ASE)"
+
+
+@check("geometry", "atoms ~1e8 A (1e7 cells) from the cell, not on cell multiples")
+def g_far_1e8():
+    return far_atoms(1e8)
+
+
+@check("geometry", "atoms ~1e11 A (1e10 cells) from the cell, not on cell multiples")
+def g_far_1e11():
+    return far_atoms(1e11)
+
+
+@check("geometry", "atoms ~1e12 A (1e11 cells) from the cell (e.g. after an NVE blow-up)")
+def g_far_1e12():
+    return far_atoms(1e12)
+
+
+@check("geometry", "atoms 1e300 A from a periodic cell (MLG, neighbor_list, calculator)")
+def g_far_1e300():
+    at = _at()
+    at.positions[4] += 1e300
+    out = [clear_error(lambda: MLG.from_atoms(at), ["atom(s) [4]"]),
+           clear_error(lambda: MLG.from_atoms(_at()).update(at.positions), ["atom(s) [4]"]),
+           clear_error(lambda: neighbor_list("ij", at, 3.0), ["atom(s) [4]"])]
+    at.calc = MLGCalculator(lj_pair(6.0))
+    out.append(clear_error(at.get_potential_energy, ["atom(s) [4]"]))
+    return out[0]
 
 
 # --------------------------------------------------------------------------
@@ -604,6 +669,35 @@ def b_cell_dtype():
     return f"clear errors ({len(out)} cases)"
 
 
+@check("bad input", "MLG keyword arguments: sweep_cap, monitor_every, max_phase_lag, pbc, shape")
+def b_mlg_kwargs():
+    at = _at()
+    P, C = at.positions, at.cell.array
+    out = []
+    for kw, w in (({"sweep_cap": np.nan}, "sweep_cap"), ({"sweep_cap": "x"}, "sweep_cap"),
+                  ({"sweep_cap": 0}, "sweep_cap"), ({"monitor_every": "x"}, "monitor_every"),
+                  ({"max_phase_lag": np.nan}, "max_phase_lag"), ({"method": "x"}, "method"),
+                  ({"pbc": "abc"}, "pbc"), ({"pbc": [True, False]}, "pbc"),
+                  ({"shape": (1, 1, 1)}, "shape"), ({"shape": (-2, -2, -4)}, "shape")):
+        kw = dict(kw)
+        pbc = kw.pop("pbc", True)
+        out.append(clear_error(lambda kw=kw, pbc=pbc: MLG(P, C, pbc, **kw), w))
+    return f"clear errors ({len(out)} cases)"
+
+
+@check("bad input", "neighbor_list cutoff 1e300 (finite but absurd)")
+def b_cutoff_huge():
+    return clear_error(lambda: neighbor_list("ij", _at(), 1e300), "cutoff")
+
+
+@check("bad input", "NeighborList cutoffs of strings / complex numbers")
+def b_nl_cutoff_types():
+    at = _at()
+    out = [clear_error(lambda: NeighborList(["a"] * len(at)).update(at), "cutoff"),
+           clear_error(lambda: NeighborList([1j] * len(at)).update(at), "cutoff")]
+    return out[0]
+
+
 @check("bad input", "neighbor_list bad quantities / NeighborList misuse")
 def b_quantities():
     at = _at()
@@ -672,6 +766,13 @@ CLI_CASES = [
     (["rdf", "@TRAJ@", "--template", "4"], "template"),
     (["rdf", "@TRAJ@", "--select", "name ZZZ"], "select"),
     (["rdf", "@NANTRAJ@"], ["nan", "position", "atom"]),
+    (["tradeoff", "--scene", "liquid", "--natoms", "200", "--cutoff", "nan"], "cutoff"),
+    (["tradeoff", "--scene", "liquid", "--natoms", "200", "--cutoff", "-1"], "cutoff"),
+    (["tradeoff", "--scene", "liquid", "--natoms", "200", "--cutoff", "5", "--sigma", "inf"], "sigma"),
+    (["tradeoff", "--scene", "liquid", "--natoms", "200", "--cutoff", "5", "--skin", "-1"], "skin"),
+    (["tradeoff", "--scene", "nope", "--cutoff", "5"], "scene"),
+    (["tradeoff", "--scene", "liquid", "--natoms", "200", "--cutoff", "5", "--widths", "4"], "widths"),
+    (["tradeoff", "@NANXYZ@", "--cutoff", "5"], ["atom(s) [1]"]),
 ]
 
 
@@ -686,7 +787,9 @@ def _cli_files():
     bad.positions[1] = np.nan
     nantraj = os.path.join(d, "nan.pdb")
     write(nantraj, bad, format="proteindatabank")
-    return {"@TRAJ@": traj, "@NANTRAJ@": nantraj}
+    nanxyz = os.path.join(d, "nan.xyz")
+    write(nanxyz, bad, format="extxyz")
+    return {"@TRAJ@": traj, "@NANTRAJ@": nantraj, "@NANXYZ@": nanxyz}
 
 
 def cli_case(args, words, files=None):
@@ -712,6 +815,14 @@ for _args, _words in CLI_CASES:
         (lambda a, w: lambda: cli_case(a, w))(_args, _words))
 
 
+# Known failures in modules the owner of this file may not edit; in
+# tests/test_extremes.py they are xfail(strict=True) with these reasons.
+KNOWN_FAILURES = {
+    "CLI: ase-mlg rdf nantraj": "analysis.py/cli.py: the rdf progress bar and an "
+        "MDAnalysis UserWarning go to stderr before the (clear) NaN error line",
+}
+
+
 # --------------------------------------------------------------------------
 def run_all(select=None):
     rows = []
@@ -725,6 +836,8 @@ def run_all(select=None):
         except Exception as err:  # noqa: BLE001 -- report every failure
             status = "FAILURE"
             res = f"{type(err).__name__}: " + " ".join(str(err).split())[:300]
+        if status == "FAILURE" and name in KNOWN_FAILURES:
+            res += " -- known: " + KNOWN_FAILURES[name]
         rows.append((group, name, status, res, time.perf_counter() - t))
         print(f"[{status}] {name} ({rows[-1][4]:.1f} s)", file=sys.stderr)
     return rows
@@ -733,7 +846,7 @@ def run_all(select=None):
 def main():
     rows = run_all(sys.argv[1] if len(sys.argv) > 1 else None)
     print("# Numerical stability at the extremes (issue 7)\n")
-    print("Regenerate (repository root, ~2-4 min on 2 cores):\n")
+    print("Regenerate (repository root, ~40 s on 2 cores; EXTREMES_BIG_N sets the size of the big energy sum, default 1e6 atoms):\n")
     print("    PYTHONPATH=. /work/venv/bin/python validation/extremes.py "
           "> validation/extremes.md\n")
     print("Every extreme tried, compared with ASE (`ase.neighborlist.neighbor_list`, "
@@ -745,7 +858,9 @@ def main():
     nerr = sum(r[2] == "clear error" for r in rows)
     nfail = sum(r[2] == "FAILURE" for r in rows)
     print(f"Summary: {len(rows)} checks: {npass} pass, {nerr} clear error, "
-          f"{nfail} failure.\n")
+          f"{nfail} failure (each a known bug in a module outside this "
+          f"suite's ownership, xfail(strict=True) in the tests; reason after "
+          f"'known:').\n")
     print("| group | extreme | result | details | time (s) |")
     print("|---|---|---|---|---|")
     for g, n, s, r, t in rows:
