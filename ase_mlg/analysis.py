@@ -1006,6 +1006,12 @@ def run_rdf_command(args, out=None):
             import dask  # noqa: F401
         except ImportError:
             raise ValueError("--backend: dask is not installed") from None
+    # frame 0 is checked before the progress bar starts, so that the common
+    # bad file gives one clean error line
+    bad = ~np.isfinite(u.atoms.positions).all(axis=1)
+    if bad.any():
+        raise ValueError(f"TRAJECTORY: frame 0 has non-finite coordinates for atom(s) "
+                         f"{np.flatnonzero(bad)[:10].tolist()}")
     try:
         r.check_range()  # frame 0 now; later frames (NPT boxes) during the run
         if args.backend == "serial":

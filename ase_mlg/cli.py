@@ -231,7 +231,11 @@ def main(argv=None):
     add_rdf_parser(sub)
     add_tradeoff_parser(sub)
     args = parser.parse_args(argv)
+    import warnings
     try:
+        # library warnings (e.g. MDAnalysis readers without time steps) are
+        # not errors; a CLI error must stay one line on stderr
+        warnings.simplefilter("ignore", UserWarning)
         if args.command == "demo":
             demo(args.natoms, args.steps, args.seed, md_steps=args.md_steps)
         elif args.command == "rdf":

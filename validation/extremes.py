@@ -817,10 +817,7 @@ for _args, _words in CLI_CASES:
 
 # Known failures in modules the owner of this file may not edit; in
 # tests/test_extremes.py they are xfail(strict=True) with these reasons.
-KNOWN_FAILURES = {
-    "CLI: ase-mlg rdf nantraj": "analysis.py/cli.py: the rdf progress bar and an "
-        "MDAnalysis UserWarning go to stderr before the (clear) NaN error line",
-}
+KNOWN_FAILURES = {}
 
 
 # --------------------------------------------------------------------------
