@@ -204,6 +204,18 @@ def _build(g, nx, ny, nz, lo0, hi0, method):
 # maintenance: odd-even swap sweeps (Boris 1985 sec. III)
 # --------------------------------------------------------------------------
 
+@njit(cache=True, inline="always")
+def _swap_sites(sites, coords, s, u):
+    """Exchange everything stored at sites s and u (Boris's swap)."""
+    a = sites[s]
+    sites[s] = sites[u]
+    sites[u] = a
+    for c in range(3):
+        x = coords[s, c]
+        coords[s, c] = coords[u, c]
+        coords[u, c] = x
+
+
 def _phase(sites, coords, n, stride, axis, parity):
     """One odd or even phase along one axis: compare sites (s, s+stride) for
     line index i = parity, parity+2, ...; the pairs are disjoint, so the
@@ -219,13 +231,7 @@ def _phase(sites, coords, n, stride, axis, parity):
             s = base + inner
             u = s + stride
             if coords[s, axis] > coords[u, axis]:
-                a = sites[s]
-                sites[s] = sites[u]
-                sites[u] = a
-                for c in range(3):
-                    x = coords[s, c]
-                    coords[s, c] = coords[u, c]
-                    coords[u, c] = x
+                _swap_sites(sites, coords, s, u)
                 swaps += 1
     return swaps
 
@@ -242,13 +248,7 @@ def _seam(sites, coords, n, stride, axis, period):
         first = o * n * stride + inner
         last = first + (n - 1) * stride
         if coords[last, axis] > coords[first, axis] + period:
-            a = sites[first]
-            sites[first] = sites[last]
-            sites[last] = a
-            for c in range(3):
-                x = coords[first, c]
-                coords[first, c] = coords[last, c]
-                coords[last, c] = x
+            _swap_sites(sites, coords, first, last)
             coords[first, axis] -= period
             coords[last, axis] += period
             swaps += 1
@@ -263,32 +263,31 @@ _seam_serial, _seam_parallel = njit(cache=True)(_seam), njit(cache=True, paralle
 PARALLEL_SITES = 32768
 
 
-@njit(cache=True)
 def _sweeps(sites, coords, shape, periods, cap):
     """Swap sweeps until a full sweep makes no swap, or ``cap`` sweeps.
 
     Returns (sweeps that swapped, total swaps, converged).
+
+    The loop is Python on purpose: a numba function that calls a threaded
+    (``parallel=True``) kernel caches the thread count it was compiled with
+    and crashed (segfault) when loaded under another NUMBA_NUM_THREADS.
     """
     par = sites.size >= PARALLEL_SITES
-    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    phase = _phase_parallel if par else _phase_serial
+    seam = _seam_parallel if par else _seam_serial
+    strides = (shape[1] * shape[2], shape[2], 1)
     nsweep = 0
     nswap = 0
     while True:
         swaps = 0
         for axis in range(3):
-            n = shape[axis]
+            n = int(shape[axis])
             if n < 2:
                 continue
-            for parity in range(2):
-                if par:
-                    swaps += _phase_parallel(sites, coords, n, strides[axis], axis, parity)
-                else:
-                    swaps += _phase_serial(sites, coords, n, strides[axis], axis, parity)
+            for parity in (0, 1):
+                swaps += phase(sites, coords, n, strides[axis], axis, parity)
             if periods[axis] > 0.0:
-                if par:
-                    swaps += _seam_parallel(sites, coords, n, strides[axis], axis, periods[axis])
-                else:
-                    swaps += _seam_serial(sites, coords, n, strides[axis], axis, periods[axis])
+                swaps += seam(sites, coords, n, strides[axis], axis, periods[axis])
         if swaps == 0:
             return nsweep, nswap, True
         nsweep += 1

@@ -373,3 +373,31 @@ def test_shape_at_any_length_scale(scale):
     assert grid.shape == MLG(x / scale).shape
     tiny = np.array([[0, 0, 0], [0, 0, 1e-200]])
     check_valid(MLG(tiny, np.eye(3) * 0.7, False), 2)
+
+
+def test_other_thread_counts_load_the_cached_kernels():
+    """Kernels cached under one NUMBA_NUM_THREADS must run under another (a
+    numba function calling a threaded one once segfaulted here)."""
+    import os
+    import subprocess
+    import sys
+    code = (
+        "import numpy as np, ase_mlg\n"
+        "from ase_mlg.scenes import random_points, lj_liquid\n"
+        "from ase_mlg.potentials import LennardJones\n"
+        "a = random_points(40000, 0.8, seed=1)\n"
+        "g = ase_mlg.MLG.from_atoms(a)\n"
+        "g.update(a.positions + 0.01)\n"
+        "assert g.is_monotone()\n"
+        "n = len(ase_mlg.neighbor_list('i', a, 1.5))\n"
+        "b = lj_liquid(500)\n"
+        "b.calc = ase_mlg.MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5))\n"
+        "print(n, b.get_potential_energy())\n")
+    outs = []
+    for threads in ("1", "2"):
+        env = dict(os.environ, NUMBA_NUM_THREADS=threads)
+        res = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                             text=True, timeout=300)
+        assert res.returncode == 0, res.stderr[-2000:]
+        outs.append(res.stdout)
+    assert outs[0] == outs[1]
