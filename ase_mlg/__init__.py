@@ -28,8 +28,14 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
     del _numba
 
 from .grid import MLG  # noqa: E402
-from .neighborlist import NeighborList, neighbor_list  # noqa: E402
+from .neighborlist import (NeighborList, NewPrimitiveNeighborList,  # noqa: E402
+                           PrimitiveNeighborList, build_neighbor_list,
+                           first_neighbors, get_connectivity_matrix,
+                           neighbor_list, primitive_neighbor_list)
 from .calculator import MLGCalculator  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["MLG", "neighbor_list", "NeighborList", "MLGCalculator"]
+__all__ = ["MLG", "neighbor_list", "NeighborList", "MLGCalculator",
+           "primitive_neighbor_list", "first_neighbors",
+           "get_connectivity_matrix", "build_neighbor_list",
+           "PrimitiveNeighborList", "NewPrimitiveNeighborList"]

@@ -18,13 +18,23 @@
   :class:`NewPrimitiveNeighborList`: the semantics of the ASE classes of the
   same names, including which half of the pairs ``bothways=False`` keeps
   (ASE's two primitives keep different halves; each of ours keeps the same
-  half as its ASE namesake), ``sorted=True`` order (by neighbour index,
-  then offsets), the rebuild rule (any atom moved more than ``skin`` since
+  half as its ASE namesake), ``sorted=True`` order to the element (the old
+  primitive: by neighbour index, then offsets; the new one: ASE's
+  ``argsort(i * len(i) + j)``, ties between images of one neighbour in ASE's
+  own order -- except where ASE's key breaks the order by atom, see
+  ``_MLGPrimitive._sort``), the rebuild rule (any atom moved more than ``skin`` since
   the last build -- ASE adds ``skin`` to every radius -- or pbc/cell/number of
   atoms changed) and ``update()`` returning True only when it rebuilt.
   One MLG is kept across rebuilds and maintained by ``grid.update`` (swap
   sweeps); a new grid is built only when pbc, cell or the number of atoms
   change.
+
+* :func:`first_neighbors`, :func:`get_connectivity_matrix` and
+  :func:`build_neighbor_list` (which builds our :class:`NeighborList`) as in
+  ASE; ``natural_cutoffs``, ``get_distance_matrix``,
+  ``get_distance_indices`` and ``mic`` build no list and are ASE's own,
+  re-exported, so ``import ase_mlg.neighborlist as neighborlist`` replaces
+  ``import ase.neighborlist as neighborlist`` whole.
 
 Use with ASE calculators that take a neighbour-list function::
 
@@ -40,6 +50,9 @@ elements in a cutoff dict, NaN/inf positions, a zero-volume periodic cell.
 import numbers as _numbers
 
 import numpy as np
+# ASE's helpers that build no list are ASE's own, re-exported unchanged
+from ase.neighborlist import (get_distance_indices, get_distance_matrix,
+                              mic, natural_cutoffs)
 from scipy import sparse as _sp
 
 from .geometry import Box, as_positions
@@ -49,7 +62,9 @@ from .query import (CUT_RADII, CUT_SCALAR, CUT_TABLE, BlockIndex,
 
 __all__ = ["neighbor_list", "primitive_neighbor_list", "NeighborList",
            "PrimitiveNeighborList", "NewPrimitiveNeighborList",
-           "first_neighbors"]
+           "first_neighbors", "get_connectivity_matrix",
+           "build_neighbor_list", "natural_cutoffs", "get_distance_matrix",
+           "get_distance_indices", "mic"]
 
 _QUANTITIES = "ijdDS"
 BLOCK = 2
@@ -372,14 +387,57 @@ class _MLGPrimitive:
                 keep = self._half_mask(i, j, S, cellobj, pbc, positions)
                 i, j, S = i[keep], j[keep], S[keep]
             if self.sorted:
-                order = np.lexsort((S[:, 2], S[:, 1], S[:, 0], j, i))
-                i, j, S = i[order], j[order], S[order]
+                i, j, S = self._sort(i, j, S, pbc, coords)
         self.pair_first = i
         self.pair_second = j
         self.offset_vec = S
         self.first_neigh = first_neighbors(n, i)
         self._lists = None
         self.nupdates += 1
+
+    def _sort(self, i, j, S, pbc, coords):
+        """ASE's ``sorted=True`` order of the list (i, j, S)."""
+        if self._ase_half != "new":
+            # ase PrimitiveNeighborList: each atom's neighbours by index, then
+            # offsets x, y, z (a stable lexsort: one order for a given set)
+            order = np.lexsort((S[:, 2], S[:, 1], S[:, 0], j, i))
+            return i[order], j[order], S[order]
+        # ase NewPrimitiveNeighborList: np.argsort(i * len(i) + j), ASE's
+        # key and call.  With distinct keys the result is one order whatever
+        # the input order, so ours is ASE's.  Equal keys (an atom seeing
+        # several images of one neighbour in a small cell) are left in the
+        # order of ASE's bin search by an unstable sort: the only way to get
+        # that order is ASE's own search, run for these (small-cell) cases.
+        key = i * len(i) + j
+        order = np.argsort(key)
+        if (np.diff(i[order]) < 0).any():
+            # Deliberate difference: with fewer pairs than the largest
+            # neighbour index ASE's key is not ordered by i, its list is not
+            # sorted by atom, and its get_neighbors returns other atoms'
+            # neighbours.  We sort by (i, j, offsets): correct neighbours.
+            order = np.lexsort((S[:, 2], S[:, 1], S[:, 0], j, i))
+            return i[order], j[order], S[order]
+        skey = key[order]
+        if len(skey) < 2 or not (skey[1:] == skey[:-1]).any():
+            return i[order], j[order], S[order]
+        from ase.neighborlist import NewPrimitiveNeighborList as _AseNew
+        ref = _AseNew(self.cutoffs, skin=0.0, sorted=True,
+                      self_interaction=self.self_interaction,
+                      bothways=self.bothways,
+                      use_scaled_positions=self.use_scaled_positions)
+        ref.build(pbc, self.cell, coords)
+        ai, aj, aS = (np.asarray(ref.pair_first, dtype=int),
+                      np.asarray(ref.pair_second, dtype=int),
+                      np.asarray(ref.offset_vec, dtype=int).reshape(-1, 3))
+        # the same set of pairs (the ASE suite checks it); otherwise keep ours
+        mine = np.lexsort((S[:, 2], S[:, 1], S[:, 0], j, i))
+        theirs = np.lexsort((aS[:, 2], aS[:, 1], aS[:, 0], aj, ai))
+        if (len(ai) == len(i) and np.array_equal(i[mine], ai[theirs])
+                and np.array_equal(j[mine], aj[theirs])
+                and np.array_equal(S[mine], aS[theirs])):
+            return ai, aj, aS
+        order = np.lexsort((S[:, 2], S[:, 1], S[:, 0], key))
+        return i[order], j[order], S[order]
 
     def _half_mask(self, i, j, S, cellobj, pbc, positions):
         if self._ase_half == "new":
@@ -515,26 +573,7 @@ class NeighborList:
         """(N, N) int8 matrix with 1 where j is a neighbour of i (scipy
         ``dok_matrix`` if ``sparse``, else a dense array), as
         ``ase.neighborlist.get_connectivity_matrix``."""
-        nl = self.nl
-        if nl.nupdates <= 0:
-            raise RuntimeError('Must call update(atoms) on your neighborlist '
-                               'first!')
-        n = len(nl.cutoffs)
-        if hasattr(nl, "pair_first"):
-            i, j = nl.pair_first, nl.pair_second
-        else:  # a foreign primitive: ask it atom by atom
-            parts = [nl.get_neighbors(a)[0] for a in range(n)]
-            i = np.repeat(np.arange(n), [len(p) for p in parts])
-            j = np.concatenate(parts) if parts else np.empty(0, int)
-        if sparse:
-            key = np.unique(i.astype(np.int64) * max(n, 1) + j)
-            ii, jj = np.divmod(key, max(n, 1))
-            m = _sp.coo_matrix((np.ones(len(key), np.int8), (ii, jj)),
-                               shape=(n, n), dtype=np.int8)
-            return m.todok()
-        matrix = np.zeros((n, n), dtype=np.int8)
-        matrix[i, j] = 1
-        return matrix
+        return get_connectivity_matrix(self.nl, sparse)
 
     @property
     def nupdates(self):
@@ -564,3 +603,59 @@ class NeighborList:
         nneighbors = sum(offsets.any(axis=1).sum()
                          for offsets in self.nl.displacements)
         return nneighbors // 2 if self.nl.bothways else nneighbors
+
+
+# --------------------------------------------------------------------------
+# functions on lists
+# --------------------------------------------------------------------------
+
+def get_connectivity_matrix(nl, sparse=True):
+    """(N, N) int8 matrix with 1 where j is a neighbour of i, as
+    ``ase.neighborlist.get_connectivity_matrix``: a scipy ``dok_matrix`` if
+    ``sparse``, else a dense array; symmetric only for ``bothways=True``.
+
+    ``nl`` is a primitive list (``NeighborList.nl``, as in ASE) or, here
+    also, a :class:`NeighborList`; foreign primitives with ASE's interface
+    (``cutoffs``, ``nupdates``, ``get_neighbors``) work too.
+    """
+    if isinstance(nl, NeighborList):
+        nl = nl.nl
+    for attr in ("cutoffs", "nupdates", "get_neighbors"):
+        if not hasattr(nl, attr):
+            raise TypeError(f"nl: expected a neighbour list, got "
+                            f"{type(nl).__name__} (no {attr!r})")
+    if nl.nupdates <= 0:
+        raise RuntimeError('Must call update(atoms) on your neighborlist '
+                           'first!')
+    n = len(nl.cutoffs)
+    if hasattr(nl, "pair_first"):
+        i, j = nl.pair_first, nl.pair_second
+    else:  # a foreign primitive: ask it atom by atom
+        parts = [np.asarray(nl.get_neighbors(a)[0], dtype=int)
+                 for a in range(n)]
+        i = np.repeat(np.arange(n), [len(p) for p in parts])
+        j = np.concatenate(parts) if parts else np.empty(0, int)
+    if sparse:
+        key = np.unique(np.asarray(i, np.int64) * max(n, 1) + j)
+        ii, jj = np.divmod(key, max(n, 1))
+        m = _sp.coo_matrix((np.ones(len(key), np.int8), (ii, jj)),
+                           shape=(n, n), dtype=np.int8)
+        return m.todok()
+    matrix = np.zeros((n, n), dtype=np.int8)
+    matrix[i, j] = 1
+    return matrix
+
+
+def build_neighbor_list(atoms, cutoffs=None, **kwargs):
+    """A :class:`NeighborList` (ours) for ``atoms``, already updated, as
+    ``ase.neighborlist.build_neighbor_list``.
+
+    ``cutoffs``: per-atom radii; default :func:`natural_cutoffs` (covalent
+    radii).  ``kwargs`` go to :class:`NeighborList` (``skin``, ``sorted``,
+    ``self_interaction``, ``bothways``, ``primitive``).
+    """
+    if cutoffs is None:
+        cutoffs = natural_cutoffs(atoms)
+    nl = NeighborList(cutoffs, **kwargs)
+    nl.update(atoms)
+    return nl

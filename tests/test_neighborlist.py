@@ -431,40 +431,194 @@ def test_bad_quantities_positions_cell():
 
 
 @pytest.mark.parametrize("pbc", [True, (True, False, True), False])
-def test_strategies_agree(pbc):
-    """The three full-list strategies of find_pairs give the same pairs,
-    bitwise (d, D, S), and all are sorted by i."""
+def test_full_list_sorted_and_mirrors_half_bitwise(pbc):
+    """find_pairs' full list is sorted by i, and equals its half list
+    mirrored, bitwise in d and S (D up to sign), on a sheared cell with atoms
+    outside it."""
     rng = np.random.default_rng(11)
     cell = np.array([[14.0, 0, 0], [5.0, 13.0, 0], [-3.0, 2.0, 12.0]])
     atoms = ase.Atoms("Ar300", scaled_positions=rng.random((300, 3)) * 1.2 - 0.1,
                       cell=cell, pbc=pbc)
-    grid = ase_mlg.MLG.from_atoms(atoms)
-    index = BlockIndex(grid, 2)
-    radii = rng.random(300) + 1.0
-    for kw in (dict(rat=np.full(300, 4.0), mode=0, cut=4.0),
-               dict(rat=radii + radii.max(), mode=1, radii=radii)):
-        res = [find_pairs(index, self_interaction=True, strategy=s, **kw)
-               for s in ("direct", "mirror", "store")]
-        keys = []
-        for r in res:
-            assert (np.diff(r["i"]) >= 0).all()
-            o = np.lexsort((r["S"][:, 2], r["S"][:, 1], r["S"][:, 0], r["j"], r["i"]))
-            keys.append({q: r[q][o] for q in "ijdDS"})
-        for other in keys[1:]:
-            for q in "ijdDS":
-                assert np.array_equal(keys[0][q], other[q])
-
-
-def test_half_strategies_agree():
-    rng = np.random.default_rng(12)
-    atoms = ase.Atoms("Ar200", scaled_positions=rng.random((200, 3)),
-                      cell=[[9.0, 0, 0], [2.0, 9.0, 0], [0, 1.0, 9.0]], pbc=True)
     index = BlockIndex(ase_mlg.MLG.from_atoms(atoms), 2)
-    keys = []
-    for s in ("direct", "store"):
-        r = find_pairs(index, np.full(200, 4.5), 0, 4.5, half=True, strategy=s,
-                       self_interaction=True)
-        o = np.lexsort((r["S"][:, 2], r["S"][:, 1], r["S"][:, 0], r["j"], r["i"]))
-        keys.append({q: r[q][o] for q in "ijdDS"})
-    for q in "ijdDS":
-        assert np.array_equal(keys[0][q], keys[1][q])
+    full = find_pairs(index, np.full(300, 4.0), 0, 4.0, self_interaction=True)
+    half = find_pairs(index, np.full(300, 4.0), 0, 4.0, half=True,
+                      self_interaction=True)
+    assert (np.diff(full["i"]) >= 0).all()
+    mi = np.concatenate([half["i"], half["j"]])
+    mj = np.concatenate([half["j"], half["i"]])
+    mS = np.concatenate([half["S"], -half["S"]])
+    md = np.concatenate([half["d"], half["d"]])
+    keep = ~((mi == mj) & (mS == 0).all(1))
+    keep[:len(half["i"])] = True  # self pairs once
+    mi, mj, mS, md = mi[keep], mj[keep], mS[keep], md[keep]
+    o = np.lexsort((mS[:, 2], mS[:, 1], mS[:, 0], mj, mi))
+    f = np.lexsort((full["S"][:, 2], full["S"][:, 1], full["S"][:, 0],
+                    full["j"], full["i"]))
+    assert len(o) == len(f) > 1000
+    assert np.array_equal(mi[o], full["i"][f])
+    assert np.array_equal(mj[o], full["j"][f])
+    assert np.array_equal(mS[o], full["S"][f])
+    assert np.array_equal(md[o], full["d"][f])
+
+
+# --------------------------------------------------------------------------
+# the whole ase.neighborlist surface (issue 12, item 2)
+# --------------------------------------------------------------------------
+
+LIST_BOUND = ["neighbor_list", "primitive_neighbor_list", "NeighborList",
+              "PrimitiveNeighborList", "NewPrimitiveNeighborList",
+              "first_neighbors", "get_connectivity_matrix",
+              "build_neighbor_list"]
+ASE_HELPERS = ["natural_cutoffs", "get_distance_matrix",
+               "get_distance_indices", "mic"]
+
+
+def test_every_public_ase_name_is_offered():
+    """Every public name of ase.neighborlist that users import: the ones
+    that build or read a list are ours, the rest are ASE's own objects; the
+    list-bound ones are also at the top level of ase_mlg."""
+    for name in LIST_BOUND:
+        ours = getattr(nl, name)
+        assert ours.__module__ == "ase_mlg.neighborlist", name
+        assert ours is not getattr(ase_nl, name)
+        assert name in nl.__all__
+    for name in ASE_HELPERS:
+        assert getattr(nl, name) is getattr(ase_nl, name)
+        assert name in nl.__all__
+    for name in ["primitive_neighbor_list", "first_neighbors",
+                 "get_connectivity_matrix", "build_neighbor_list",
+                 "neighbor_list", "NeighborList", "PrimitiveNeighborList",
+                 "NewPrimitiveNeighborList"]:
+        assert getattr(ase_mlg, name) is getattr(nl, name)
+        assert name in ase_mlg.__all__
+    # nothing public in ase.neighborlist that builds a list is missing
+    public = {n for n in vars(ase_nl) if not n.startswith("_")
+              and callable(getattr(ase_nl, n))
+              and getattr(getattr(ase_nl, n), "__module__", "") == "ase.neighborlist"}
+    assert public <= set(nl.__all__) | {"deprecated"}
+
+
+def _pairs_of(nlist, n):
+    return {(a, int(j), *map(int, S)) for a in range(n)
+            for j, S in zip(*nlist.get_neighbors(a))}
+
+
+@pytest.mark.parametrize("kwargs", [{}, dict(self_interaction=False, bothways=True),
+                                    dict(skin=0.0, sorted=True)])
+def test_build_neighbor_list_builds_ours(kwargs):
+    from ase.build import molecule
+    for atoms in (molecule("CH3CH2OH"), bulk("Cu", cubic=True) * (2, 1, 1)):
+        ours = nl.build_neighbor_list(atoms, **kwargs)
+        ref = ase_nl.build_neighbor_list(atoms, **kwargs)
+        assert isinstance(ours, nl.NeighborList)
+        assert isinstance(ours.nl, nl.PrimitiveNeighborList)
+        assert ours.nupdates == 1
+        assert _pairs_of(ours, len(atoms)) == _pairs_of(ref, len(atoms))
+        assert len(_pairs_of(ours, len(atoms))) > len(atoms)
+    # explicit radii instead of natural_cutoffs
+    atoms = bulk("Cu", cubic=True)
+    ours = nl.build_neighbor_list(atoms, cutoffs=[1.5] * 4, bothways=True,
+                                  self_interaction=False)
+    assert all(len(ours.get_neighbors(a)[0]) == 12 for a in range(4))
+
+
+@pytest.mark.parametrize("bothways", [True, False])
+def test_get_connectivity_matrix_matches_ase(bothways):
+    from ase.build import molecule
+    for atoms in (molecule("CH3CH2OH"), bulk("Si", "diamond", a=5.43) * 2):
+        cut = ase_nl.natural_cutoffs(atoms)
+        ours = nl.NeighborList(cut, self_interaction=False, bothways=bothways)
+        ref = ase_nl.NeighborList(cut, self_interaction=False, bothways=bothways)
+        ours.update(atoms)
+        ref.update(atoms)
+        want = ase_nl.get_connectivity_matrix(ref.nl, sparse=False)
+        assert want.sum() > 0
+        for m in (nl.get_connectivity_matrix(ours.nl, sparse=False),
+                  nl.get_connectivity_matrix(ours, sparse=False),
+                  ours.get_connectivity_matrix(sparse=False)):
+            assert m.dtype == np.int8 and np.array_equal(m, want)
+        sp = nl.get_connectivity_matrix(ours.nl)
+        assert sp.format == "dok" and sp.dtype == np.int8
+        assert np.array_equal(sp.toarray(), want)
+        # an ASE primitive works too (asked atom by atom)
+        assert np.array_equal(nl.get_connectivity_matrix(ref.nl, sparse=False), want)
+    with pytest.raises(TypeError, match="nl"):
+        nl.get_connectivity_matrix([1, 2, 3])
+    with pytest.raises(RuntimeError, match="update"):
+        nl.get_connectivity_matrix(nl.NeighborList([1.0]))
+
+
+def _lists(cls, cut, atoms, **kw):
+    lst = cls(cut, **kw)
+    lst.update(atoms.pbc, atoms.get_cell(complete=True), atoms.positions)
+    return lst.pair_first.tolist(), lst.pair_second.tolist(), lst.offset_vec.tolist(), \
+        [(lst.get_neighbors(a)[0].tolist(), lst.get_neighbors(a)[1].tolist())
+         for a in range(len(atoms))]
+
+
+def _sorted_cases():
+    rng = np.random.default_rng(3)
+    gas = ase.Atoms("Ar60", positions=rng.random((60, 3)) * 20, cell=[20] * 3,
+                    pbc=True)
+    return [
+        # the issue's case: an atom sees several images of one neighbour
+        (bulk("Si", "diamond", a=5.43), 2.6),
+        (bulk("Cu", "fcc", a=3.6), 3.0),  # 1 atom, dozens of self images
+        # no ties: order fixed by the key alone
+        (bulk("Cu", "fcc", a=3.6, cubic=True) * (3, 3, 3), 1.3),
+    ]
+
+
+def test_sorted_new_primitive_with_few_pairs_is_correct():
+    """Deliberate difference: with fewer pairs than atoms ASE's sort key
+    i * len(i) + j breaks the order by i, and its get_neighbors then returns
+    other atoms' neighbours; ours is sorted by (i, j, offsets) and right."""
+    rng = np.random.default_rng(3)
+    gas = ase.Atoms("Ar60", positions=rng.random((60, 3)) * 20, cell=[20] * 3,
+                    pbc=True)
+    for bothways in (True, False):
+        kw = dict(skin=0.0, bothways=bothways, self_interaction=False)
+        srt = nl.NewPrimitiveNeighborList([0.9] * 60, sorted=True, **kw)
+        raw = nl.NewPrimitiveNeighborList([0.9] * 60, **kw)
+        ref = ase_nl.NewPrimitiveNeighborList([0.9] * 60, **kw)
+        for lst in (srt, raw, ref):
+            lst.update(gas.pbc, gas.cell, gas.positions)
+        i = srt.pair_first
+        assert 0 < len(i) < i.max()  # the case: ASE's key is not monotone in i
+        assert (np.diff(i) >= 0).all()
+        truth = {(int(a), int(b)) for a, b in zip(ref.pair_first, ref.pair_second)}
+        for lst in (srt, raw):
+            got = [(a, int(b)) for a in range(60) for b in lst.get_neighbors(a)[0]]
+            assert len(got) == len(truth) and set(got) == truth
+        for a in range(60):
+            js = srt.get_neighbors(a)[0]
+            assert (np.diff(js) >= 0).all()
+
+
+@pytest.mark.parametrize("case", range(3))
+@pytest.mark.parametrize("bothways", [True, False])
+@pytest.mark.parametrize("self_int", [True, False])
+def test_sorted_order_is_ases_exactly(case, bothways, self_int):
+    """sorted=True gives ASE's order to the element, for both primitives
+    (NewPrimitiveNeighborList sorts by i * len(i) + j with an unstable
+    argsort, PrimitiveNeighborList by neighbour index then offsets)."""
+    atoms, r = _sorted_cases()[case]
+    cut = [r] * len(atoms)
+    kw = dict(skin=0.0, sorted=True, bothways=bothways,
+              self_interaction=self_int)
+    for ours, ref in ((nl.NewPrimitiveNeighborList, ase_nl.NewPrimitiveNeighborList),
+                      (nl.PrimitiveNeighborList, ase_nl.PrimitiveNeighborList)):
+        if ours is nl.PrimitiveNeighborList:
+            # ASE's old primitive fills pair_first & co. only in the new one
+            a = nl.NeighborList(cut, primitive=ours, **kw)
+            b = ase_nl.NeighborList(cut, primitive=ref, **kw)
+            a.update(atoms)
+            b.update(atoms)
+            for k in range(len(atoms)):
+                ja, Sa = a.get_neighbors(k)
+                jb, Sb = b.get_neighbors(k)
+                assert ja.tolist() == jb.tolist() and Sa.tolist() == Sb.tolist()
+            continue
+        got, want = _lists(ours, cut, atoms, **kw), _lists(ref, cut, atoms, **kw)
+        assert len(want[0]) > 0
+        assert got == want
