@@ -64,6 +64,7 @@ when the box changes (NPT frames).  Nothing is stored per frame, so memory
 does not grow with the trajectory.
 """
 
+import functools
 import math
 import multiprocessing
 import numbers
@@ -73,8 +74,9 @@ import sys
 import numpy as np
 from numba import get_num_threads, njit, prange
 
-from MDAnalysis.analysis.backends import BackendMultiprocessing
-from MDAnalysis.analysis.rdf import InterRDF
+from MDAnalysis.analysis.backends import BackendBase, BackendDask, BackendMultiprocessing
+from MDAnalysis.analysis.rdf import InterRDF, InterRDF_s
+from MDAnalysis.core.groups import UpdatingAtomGroup
 from MDAnalysis.analysis.results import ResultsGroup
 from MDAnalysis.lib import c_distances as _mda_c
 from MDAnalysis.lib import distances as _mda_distances
@@ -83,7 +85,7 @@ from MDAnalysis.lib.mdamath import triclinic_vectors
 from .grid import MLG, template_pairs
 from .query import BlockIndex, find_pairs
 
-__all__ = ["RDF", "rdf", "CellTooSmall", "VolumeNotDefined",
+__all__ = ["RDF", "RDF_s", "DistributedBackend", "rdf", "CellTooSmall", "VolumeNotDefined",
            "add_rdf_parser", "run_rdf_command"]
 
 
@@ -268,16 +270,35 @@ def _np_histogram_bin(x, first, last, denom, nb, edges):
 
 
 @njit(cache=True, inline="always")
-def _pair_weight(a, b, m1, m2, key1, key2, use_keys):
-    """Ordered (a in g1, b in g2) pairs InterRDF counts for atoms a, b."""
-    if use_keys and key1[a] == key2[b]:
-        return 0
-    return m1[a] * m2[b]
+def _pair_weight(a, b, m1, m2, kp1, kk1, kc1, kp2, kk2, kc2, use_keys):
+    """Ordered (position of a in g1, position of b in g2) pairs InterRDF
+    counts for atoms a, b: m1[a] m2[b], less the excluded ones.  The keys
+    InterRDF compares (exclusion-block numbers, residue/segment/chain) are
+    per *position*: atom a's keys in g1 are ``kk1[kp1[a]:kp1[a+1]]``
+    (sorted), with multiplicities ``kc1``; likewise for g2.  An atom listed
+    twice, in two blocks, has two keys."""
+    w = m1[a] * m2[b]
+    if use_keys and w != 0:
+        i = kp1[a]
+        ie = kp1[a + 1]
+        j = kp2[b]
+        je = kp2[b + 1]
+        while i < ie and j < je:
+            if kk1[i] == kk2[j]:
+                w -= kc1[i] * kc2[j]
+                i += 1
+                j += 1
+            elif kk1[i] < kk2[j]:
+                i += 1
+            else:
+                j += 1
+    return w
 
 
 @njit(cache=True, parallel=True)
 def _mda_counts(pi, pj, W, kind, box, half, inv, nsgrid, cut, cut2, first,
-                last, edges, m1, m2, key1, key2, use_keys, nchunk):
+                last, edges, m1, m2, kp1, kk1, kc1, kp2, kk2, kc2, use_keys,
+                nchunk):
     """Histogram of InterRDF's pair distances over the unordered candidate
     pairs (pi, pj), pi != pj, plus every atom with itself (d = 0)."""
     nb = edges.size - 1
@@ -290,8 +311,8 @@ def _mda_counts(pi, pj, W, kind, box, half, inv, nsgrid, cut, cut2, first,
         for p in range(lo, hi):
             a = pi[p]
             b = pj[p]
-            w = (_pair_weight(a, b, m1, m2, key1, key2, use_keys)
-                 + _pair_weight(b, a, m1, m2, key1, key2, use_keys))
+            w = (_pair_weight(a, b, m1, m2, kp1, kk1, kc1, kp2, kk2, kc2, use_keys)
+                 + _pair_weight(b, a, m1, m2, kp1, kk1, kc1, kp2, kk2, kc2, use_keys))
             if w == 0:
                 continue
             d2 = _mda_d2(W, a, b, kind, box, half, inv)
@@ -310,7 +331,8 @@ def _mda_counts(pi, pj, W, kind, box, half, inv, nsgrid, cut, cut2, first,
     k0 = _np_histogram_bin(0.0, first, last, denom, nb, edges)
     if k0 >= 0:
         for a in range(m1.size):
-            out[k0] += _pair_weight(a, a, m1, m2, key1, key2, use_keys)
+            out[k0] += _pair_weight(a, a, m1, m2, kp1, kk1, kc1, kp2, kk2, kc2,
+                                    use_keys)
     return out
 
 
@@ -393,36 +415,224 @@ class _MDAConvention:
 
 
 # --------------------------------------------------------------------------
-# MDAnalysis front end
+# parallel backends: forked workers, a dask.distributed cluster
 # --------------------------------------------------------------------------
 
-class _SpawnMultiprocessing(BackendMultiprocessing):
-    """MDAnalysis's multiprocessing backend in a 'spawn' context.
+def _worker_threads(n_workers):
+    """numba threads per worker process: the cores shared out, >= 1."""
+    return max(1, (os.cpu_count() or 1) // max(1, int(n_workers)))
 
-    ``BackendMultiprocessing`` forks.  Once numba's GNU OpenMP threading
-    layer has run in this process, a forked child that launches a parallel
-    kernel is terminated by numba ("fork() called from a process already
-    using GNU OpenMP"), so the pool is spawned instead.  As with any spawn
-    start method, a script must guard its entry point with
-    ``if __name__ == "__main__":``.
+
+def _run_in_worker(func, nthreads, task):
+    """Run one computation group in a worker with ``nthreads`` numba threads
+    (workers share the cores; each would otherwise start one thread per
+    core)."""
+    import numba
+    numba.set_num_threads(min(int(nthreads), numba.config.NUMBA_NUM_THREADS))
+    return func(task)
+
+
+def _fork_context(option="backend"):
+    """The 'fork' multiprocessing context where workers can use it (Linux),
+    else None (the platform's default start method).
+
+    Forked workers need no ``if __name__ == "__main__":`` guard and see
+    what a notebook or ``python -c`` defined.  They are safe with numba's
+    TBB and workqueue threading layers (``import ase_mlg`` selects one); not
+    with GNU OpenMP once it has started threads in this process -- then a
+    one-line error says what to do instead of a worker dying.
     """
-
-    def apply(self, func, computations):
-        with multiprocessing.get_context("spawn").Pool(processes=self.n_workers) as pool:
-            return pool.map(func, computations)
-
-
-def _fork_unsafe():
-    """True when forking now would break numba's parallel kernels."""
+    if not sys.platform.startswith("linux"):
+        return None
     import numba
     try:
         layer = numba.threading_layer()
     except ValueError:  # no parallel kernel has run in this process yet
-        return False
-    # allow_none: asking must not fix the start method for the user
-    method = (multiprocessing.get_start_method(allow_none=True)
-              or multiprocessing.get_all_start_methods()[0])
-    return layer == "omp" and method == "fork"
+        layer = None
+    if layer == "omp":
+        from numba.np.ufunc import omppool
+        if getattr(omppool, "openmp_vendor", "GNU") == "GNU":
+            raise ValueError(
+                f"{option}: numba's GNU OpenMP threading layer is running in this "
+                "process and cannot be used by forked workers; set "
+                "NUMBA_THREADING_LAYER=tbb (or workqueue), or import ase_mlg "
+                "before any other numba parallel code")
+    return multiprocessing.get_context("fork")
+
+
+class _ForkMultiprocessing(BackendMultiprocessing):
+    """MDAnalysis's multiprocessing backend with forked workers (the
+    default start method is 'forkserver' from Python 3.14) and the cores
+    shared between them."""
+
+    def apply(self, func, computations):
+        ctx = _fork_context()
+        func = functools.partial(_run_in_worker, func, _worker_threads(self.n_workers))
+        pool = multiprocessing.Pool if ctx is None else ctx.Pool
+        with pool(processes=self.n_workers) as p:
+            return p.map(func, computations)
+
+
+class _ForkDask(BackendDask):
+    """MDAnalysis's dask backend (``scheduler='processes'``) with forked
+    workers: dask spawns by default, which needs a main guard."""
+
+    def apply(self, func, computations):
+        import dask
+        ctx = _fork_context()
+        func = functools.partial(_run_in_worker, func, _worker_threads(self.n_workers))
+        if ctx is None:
+            return super().apply(func, computations)
+        with dask.config.set({"multiprocessing.context": "fork"}):
+            return super().apply(func, computations)
+
+
+class DistributedBackend(BackendBase):
+    """Run an analysis on a ``dask.distributed`` cluster.
+
+    ``RDF(...).run(backend=DistributedBackend(client))``: the frames are
+    split into ``n_workers`` parts (default: one per worker the scheduler
+    knows; ``run(n_parts=...)`` splits finer), each part is sent to the
+    cluster with ``client.map`` and the partial counts are summed, so the
+    counts equal a serial run's.
+
+    Every worker must import ase_mlg and MDAnalysis and read the trajectory
+    files at the same paths (a shared file system): the analysis object is
+    pickled, and MDAnalysis reopens its files on the worker.  Start a
+    cluster with ``dask scheduler`` (prints its address, e.g.
+    ``tcp://10.0.0.1:8786``) and ``dask worker tcp://10.0.0.1:8786`` on each
+    machine; then ``Client("tcp://10.0.0.1:8786")``.  Worker threads are
+    fine with the TBB threading layer; under the workqueue fallback start
+    workers with ``--nthreads 1``.
+
+    Parameters
+    ----------
+    client : distributed.Client
+    n_workers : int, optional
+        Parts to split the frames into (default: the cluster's workers).
+    """
+
+    def __init__(self, client, n_workers=None):
+        if not (hasattr(client, "map") and hasattr(client, "gather")
+                and hasattr(client, "scheduler_info")):
+            raise TypeError(f"client: expected a dask.distributed.Client, got "
+                            f"{type(client).__name__}")
+        if n_workers is None:
+            n_workers = len(client.scheduler_info().get("workers", {}))
+            if n_workers < 1:
+                raise ValueError("client: the cluster has no workers")
+        if (isinstance(n_workers, (bool, np.bool_))
+                or not isinstance(n_workers, (numbers.Integral, np.integer))
+                or n_workers < 1):
+            raise ValueError(f"n_workers: expected an integer >= 1, got {n_workers!r}")
+        self.client = client
+        super().__init__(n_workers=int(n_workers))
+
+    def apply(self, func, computations):
+        futures = self.client.map(func, computations, pure=False)
+        return self.client.gather(futures)
+
+
+def _configure(self, backend, n_workers, unsupported_backend, configure):
+    """The shared ``_configure_backend`` of RDF and RDF_s: forked built-in
+    backends; DistributedBackend accepted as supported."""
+    if isinstance(backend, DistributedBackend):
+        if n_workers is not None and n_workers != backend.n_workers:
+            raise ValueError(f"n_workers: given as {n_workers} and as "
+                             f"DistributedBackend(n_workers={backend.n_workers})")
+        return backend
+    executor = configure(backend=backend, n_workers=n_workers,
+                         unsupported_backend=unsupported_backend)
+    if type(executor) is BackendMultiprocessing:
+        _fork_context()  # a clear error now rather than a dead worker later
+        executor = _ForkMultiprocessing(n_workers=executor.n_workers)
+    elif type(executor) is BackendDask:
+        _fork_context()
+        executor = _ForkDask(n_workers=executor.n_workers)
+    return executor
+
+
+# --------------------------------------------------------------------------
+# MDAnalysis front end
+# --------------------------------------------------------------------------
+
+def _is_updating(g):
+    return isinstance(g, UpdatingAtomGroup)
+
+
+def _key_csr(u, keys, nu):
+    """Per atom (0..nu-1), the sorted distinct ``keys`` of its positions
+    ``u`` and how often each occurs: (ptr, key, count) arrays."""
+    u = np.asarray(u, np.int64)
+    keys = np.asarray(keys, np.int64)
+    order = np.lexsort((keys, u))
+    uu, kk = u[order], keys[order]
+    if uu.size:
+        new = np.ones(uu.size, bool)
+        new[1:] = (uu[1:] != uu[:-1]) | (kk[1:] != kk[:-1])
+        starts = np.flatnonzero(new)
+        cnt = np.diff(np.append(starts, uu.size))
+        ua, ka = uu[starts], kk[starts]
+    else:
+        cnt = ua = ka = np.zeros(0, np.int64)
+    ptr = np.zeros(nu + 1, np.int64)
+    ptr[1:] = np.cumsum(np.bincount(ua, minlength=nu))
+    return ptr, ka.astype(np.int64), cnt.astype(np.int64)
+
+
+def _check_range_args(nbins, range):
+    nbins = _check_nbins(nbins)
+    try:
+        rmin, rmax = (float(x) for x in range)
+    except (TypeError, ValueError):
+        raise ValueError(f"range: expected (rmin, rmax) in Å, got {range!r}") from None
+    _check_rmax(rmax, "range: rmax")
+    if not (np.isfinite(rmin) and 0.0 <= rmin < rmax):
+        raise ValueError(f"range: need 0 <= rmin < rmax, got {range!r}")
+    return nbins
+
+
+def _check_distance_backend(backend):
+    if str(backend).lower() not in ("serial", "openmp"):
+        raise ValueError(f"backend: the distance backend must be 'serial' or "
+                         f"'OpenMP' (whose numbers RDF reproduces), got {backend!r}")
+
+
+def _frame_candidates(pairs, ts, pos32, rmax):
+    """Candidate pairs (pi, pj) of the atoms at ``pos32`` for one frame:
+    every pair whose MDAnalysis distance can be <= rmax, each unordered
+    pair once (further periodic images folded)."""
+    periodic = ts.dimensions is not None
+    cell = (triclinic_vectors(ts.dimensions, dtype=np.float64) if periodic
+            else np.zeros((3, 3)))
+    # candidates must include every pair whose MDAnalysis distance is
+    # <= rmax: its float32 wrapping/difference and float32 box differ
+    # from the float64 distance by a few float32 ulps of the coordinates
+    scale = float(np.abs(pos32).max()) + 3.0 * float(np.abs(cell).max()) + rmax
+    tol = 4e-6 * scale + 1e-9
+    pos = pos32.astype(np.float64)
+    pi, pj, _ = pairs(pos, cell, periodic, rmax + tol)
+    if periodic:
+        heights = 1.0 / np.linalg.norm(np.linalg.inv(cell), axis=0)
+        if 2.0 * (rmax + tol) >= heights.min():
+            pi, pj = _fold_images(pi, pj, len(pos))
+    return pi, pj
+
+
+def _check_box(ts, norm):
+    box = ts.dimensions
+    if box is None:
+        if norm == "rdf":
+            raise ValueError(
+                f"norm: frame {ts.frame} has no box, so norm='rdf' (which divides "
+                "by the box volume) is undefined; use norm='density' or 'none' "
+                "(CLI: --norm density)")
+        return None
+    box32 = np.asarray(box, dtype=np.float32)
+    if not (box32[:3] > 0).all():
+        raise ValueError(f"box: frame {ts.frame} has a zero-length cell vector "
+                         f"{box32.tolist()}")
+    return box32
 
 
 class RDF(InterRDF):
@@ -443,15 +653,22 @@ class RDF(InterRDF):
     Parameters
     ----------
     g1, g2 : AtomGroup
-        Non-empty groups of the same universe.
+        Groups of the same universe.  Updating groups
+        (``select_atoms(..., updating=True)``) are re-read every frame, as
+        InterRDF reads them, and may be empty on some frames; a static
+        group must not be empty.
     nbins : int
         Number of bins (>= 1).
     range : (float, float)
         ``(rmin, rmax)`` in Å, ``0 <= rmin < rmax``.
     norm : {'rdf', 'density', 'none'}
+        ``'rdf'`` needs a box on every frame (it divides by the mean box
+        volume): without one, ``run`` raises a one-line ValueError at the
+        first frame (InterRDF fails with ZeroDivisionError after the last).
     exclusion_block : (int, int), optional
         Mask pairs with ``pos1 // n1 == pos2 // n2`` (positions in g1, g2),
-        as InterRDF; groups must then hold no atom twice.
+        as InterRDF; ``(1, 1)`` with ``g1 == g2`` removes the self pairs.
+        An atom listed twice has two positions, as in InterRDF.
     exclude_same : {'residue', 'segment', 'chain'}, optional
     backend : {'serial', 'OpenMP'}
         InterRDF's *distance* backend (not :meth:`run`'s): both compute the
@@ -480,11 +697,12 @@ class RDF(InterRDF):
     Parallel runs: ``run(backend="multiprocessing" | "dask", n_workers=k)``
     split the frames between worker processes, each with its own grid;
     counts and volumes are summed (:meth:`_get_aggregator`), so the counts
-    equal the serial run's.  MDAnalysis's multiprocessing backend forks;
-    once numba's GNU OpenMP layer has run in this process a forked worker
-    would be killed by numba, so the pool is then started with 'spawn' (a
-    script must then guard its entry point with
-    ``if __name__ == "__main__":``).  Dask's process scheduler spawns anyway.
+    equal the serial run's.  Workers are forked (on Linux), so a plain
+    script, ``python -c`` and a notebook work without an
+    ``if __name__ == "__main__":`` guard; ``import ase_mlg`` selects numba's
+    fork-safe TBB threading layer for this.  The numba threads are shared
+    out between the workers.  ``run(backend=DistributedBackend(client))``
+    runs on a ``dask.distributed`` cluster.
 
     Examples
     --------
@@ -502,36 +720,42 @@ class RDF(InterRDF):
     def __init__(self, g1, g2, nbins=75, range=(0.0, 15.0), norm="rdf",
                  exclusion_block=None, exclude_same=None, backend="serial",
                  template=None, **kwargs):
-        nbins = _check_nbins(nbins)
-        try:
-            rmin, rmax = (float(x) for x in range)
-        except (TypeError, ValueError):
-            raise ValueError(f"range: expected (rmin, rmax) in Å, got {range!r}") from None
-        _check_rmax(rmax, "range: rmax")
-        if not (np.isfinite(rmin) and 0.0 <= rmin < rmax):
-            raise ValueError(f"range: need 0 <= rmin < rmax, got {range!r}")
-        for name, g in (("g1", g1), ("g2", g2)):
-            if len(g) == 0:
-                raise ValueError(f"{name}: the atom group is empty")
-        if g1.universe is not g2.universe:
-            raise ValueError("g2: must belong to the same universe as g1")
-        if str(backend).lower() not in ("serial", "openmp"):
-            raise ValueError(f"backend: the distance backend must be 'serial' or "
-                             f"'OpenMP' (whose numbers RDF reproduces), got {backend!r}")
-        self.template = _check_template(template)
+        # InterRDF's own checks (norm, exclude_same) first, with its messages
         super().__init__(g1, g2, nbins=nbins, range=range, norm=norm,
                          exclusion_block=exclusion_block,
                          exclude_same=exclude_same, backend=backend, **kwargs)
+        self.rdf_settings["bins"] = _check_range_args(nbins, range)
+        for name, g in (("g1", g1), ("g2", g2)):
+            if len(g) == 0 and not _is_updating(g):
+                raise ValueError(f"{name}: the atom group is empty")
+        if g1.universe is not g2.universe:
+            raise ValueError("g2: must belong to the same universe as g1")
+        _check_distance_backend(backend)
+        if exclusion_block is not None:
+            try:
+                xa, xb = (int(x) for x in exclusion_block)
+                ok = xa >= 1 and xb >= 1 and tuple(exclusion_block) == (xa, xb)
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                raise ValueError(f"exclusion_block: expected two integers >= 1, got "
+                                 f"{exclusion_block!r}")
+        self.template = _check_template(template)
+        self._updating = _is_updating(g1) or _is_updating(g2)
+        self._ix = None
         self._setup_weights()
         self._pairs = None
         self.grid_stats = None
 
     def _setup_weights(self):
         """Atoms of g1 U g2 (the grid's atoms) and, per atom, how many
-        times it sits in g1 and g2 and the keys InterRDF's exclusions use."""
+        times it sits in g1 and g2 and the keys InterRDF's exclusions use.
+        Re-run on a frame where an updating group changed."""
         ix1, ix2 = self.g1.ix, self.g2.ix
+        self._ix = (ix1.copy(), ix2.copy())
         n1 = len(ix1)
         self._union, inv = np.unique(np.concatenate([ix1, ix2]), return_inverse=True)
+        inv = inv.reshape(-1)
         nu = len(self._union)
         u1, u2 = inv[:n1], inv[n1:]
         self._m1 = np.bincount(u1, minlength=nu).astype(np.int64)
@@ -539,38 +763,48 @@ class RDF(InterRDF):
         self._in1 = u1
         self._in2 = u2
         self._use_keys = False
-        self._key1 = np.zeros(nu, np.int64)
-        self._key2 = np.zeros(nu, np.int64)
         if self._exclusion_block is not None:
-            if self._m1.max() > 1 or self._m2.max() > 1:
-                raise ValueError("exclusion_block: g1 and g2 must not list an atom "
-                                 "twice (block positions would be ambiguous)")
             xa, xb = self._exclusion_block
-            self._key1[u1] = np.arange(n1) // xa
-            self._key2[u2] = np.arange(len(ix2)) // xb
+            keys1 = np.arange(n1) // xa
+            keys2 = np.arange(len(ix2)) // xb
             self._use_keys = True
         elif self.exclude_same is not None:
             attr = getattr(self.g1.universe.atoms[self._union], self.exclude_same)
             _, codes = np.unique(np.asarray(attr), return_inverse=True)
-            self._key1[:] = codes
-            self._key2[:] = codes
+            codes = codes.reshape(-1)
+            keys1, keys2 = codes[u1], codes[u2]
             self._use_keys = True
+        else:
+            keys1 = keys2 = np.zeros(0, np.int64)
+            u1 = u2 = np.zeros(0, np.int64)
+        self._keys = _key_csr(u1, keys1, nu) + _key_csr(u2, keys2, nu)
+
+    def _refresh(self):
+        """Updating groups: re-read them (InterRDF reads ``g.positions`` of
+        the current selection every frame)."""
+        if self._updating:
+            ix1, ix2 = self.g1.ix, self.g2.ix
+            if not (np.array_equal(ix1, self._ix[0]) and np.array_equal(ix2, self._ix[1])):
+                self._setup_weights()
+                if self._pairs is not None:
+                    self._pairs.grid = None  # other atoms: a new grid
 
     # -- checks -------------------------------------------------------------
     def _convention(self, ts, pos32):
-        box = ts.dimensions
-        box32 = None if box is None else np.asarray(box, dtype=np.float32)
-        if box32 is not None and not (box32[:3] > 0).all():
-            raise ValueError(f"box: frame {ts.frame} has a zero-length cell vector "
-                             f"{box32.tolist()}")
-        return _MDAConvention(pos32, box32, len(self.g1), len(self.g2),
+        box32 = _check_box(ts, self.norm)
+        return _MDAConvention(pos32, box32, len(self._in1), len(self._in2),
                               self._in1, self._in2, self.rdf_settings["range"][1])
 
     def check_range(self, ts=None):
         """Raise ``ValueError`` if rmax is beyond what the cell of ``ts``
         (default: the current frame) allows, i.e. where InterRDF itself
-        refuses the cutoff; otherwise return None."""
+        refuses the cutoff, or if ``norm='rdf'`` and the frame has no box;
+        otherwise return None."""
         ts = self._trajectory.ts if ts is None else ts
+        self._refresh()
+        if len(self._in1) == 0 or len(self._in2) == 0:
+            _check_box(ts, self.norm)
+            return
         self._convention(ts, ts.positions[self._union])
 
     # -- AnalysisBase ---------------------------------------------------------
@@ -580,29 +814,22 @@ class RDF(InterRDF):
 
     def _single_frame(self):
         ts = self._ts
-        pos32 = np.ascontiguousarray(ts.positions[self._union], dtype=np.float32)
-        conv = self._convention(ts, pos32)
-        rmax = float(self._maxrange)
-        periodic = ts.dimensions is not None
-        cell = (triclinic_vectors(ts.dimensions, dtype=np.float64) if periodic
-                else np.zeros((3, 3)))
-        # candidates must include every pair whose MDAnalysis distance is
-        # <= rmax: its float32 wrapping/difference and float32 box differ
-        # from the float64 distance by a few float32 ulps of the coordinates
-        scale = float(np.abs(pos32).max()) + 3.0 * float(np.abs(cell).max()) + rmax
-        tol = 4e-6 * scale + 1e-9
-        pos = pos32.astype(np.float64)
-        pi, pj, _ = self._pairs(pos, cell, periodic, rmax + tol)
-        if periodic:
-            heights = 1.0 / np.linalg.norm(np.linalg.inv(cell), axis=0)
-            if 2.0 * (rmax + tol) >= heights.min():
-                pi, pj = _fold_images(pi, pj, len(pos))
-        counts = _mda_counts(
-            pi, pj, conv.coords, conv.kind, conv.box, conv.half, conv.inv,
-            conv.nsgrid, rmax, rmax * rmax, float(self.rdf_settings["range"][0]),
-            rmax, self.results.edges, self._m1, self._m2, self._key1, self._key2,
-            self._use_keys, _nchunk(len(pi)))
-        self.results.count += counts
+        self._refresh()
+        if len(self._in1) == 0 or len(self._in2) == 0:
+            # an updating selection empty on this frame: no pairs (InterRDF's
+            # capped_distance of an empty group), the volume still counts
+            _check_box(ts, self.norm)
+        else:
+            pos32 = np.ascontiguousarray(ts.positions[self._union], dtype=np.float32)
+            conv = self._convention(ts, pos32)
+            rmax = float(self._maxrange)
+            pi, pj = _frame_candidates(self._pairs, ts, pos32, rmax)
+            counts = _mda_counts(
+                pi, pj, conv.coords, conv.kind, conv.box, conv.half, conv.inv,
+                conv.nsgrid, rmax, rmax * rmax, float(self.rdf_settings["range"][0]),
+                rmax, self.results.edges, self._m1, self._m2, *self._keys,
+                self._use_keys, _nchunk(len(pi)))
+            self.results.count += counts
         if self.norm == "rdf":
             self.results.volume_cum += ts.volume
 
@@ -623,16 +850,172 @@ class RDF(InterRDF):
         self._pairs = None  # the grid is per run; do not keep or pickle it
 
     def _configure_backend(self, backend, n_workers, unsupported_backend=False):
-        executor = super()._configure_backend(
-            backend=backend, n_workers=n_workers,
-            unsupported_backend=unsupported_backend)
-        if type(executor) is BackendMultiprocessing and _fork_unsafe():
-            executor = _SpawnMultiprocessing(n_workers=executor.n_workers)
-        return executor
+        return _configure(self, backend, n_workers, unsupported_backend,
+                          super()._configure_backend)
 
     def __getstate__(self):
         state = self.__dict__.copy()
         state["_pairs"] = None  # workers build their own grid in _prepare
+        return state
+
+
+@njit(cache=True)
+def _mda_s_counts(pi, pj, W, kind, box, half, inv, nsgrid, cut, cut2, rmin,
+                  rmax, nbins, ptr1, pos1, ptr2, pos2, out):
+    """InterRDF_s's per-site counts ``out[p, q, k]`` (p, q positions in
+    ag1, ag2) over the unordered candidate pairs (pi, pj) and every atom
+    with itself; bins as InterRDF_s: ``int((d - rmin) * nbins / (rmax -
+    rmin))`` truncated toward zero, counted when 0 <= k < nbins."""
+    for t in range(pi.size + ptr1.size - 1):
+        if t < pi.size:
+            a = pi[t]
+            b = pj[t]
+        else:
+            a = t - pi.size
+            b = a
+        if ptr1[a + 1] == ptr1[a] and ptr1[b + 1] == ptr1[b]:
+            continue
+        if ptr2[a + 1] == ptr2[a] and ptr2[b + 1] == ptr2[b]:
+            continue
+        if a == b:
+            d2 = 0.0
+        else:
+            d2 = _mda_d2(W, a, b, kind, box, half, inv)
+        if nsgrid:
+            if not d2 <= cut2:
+                continue
+        d = np.sqrt(d2)
+        if not nsgrid and not d <= cut:
+            continue
+        k = int((d - rmin) * nbins / (rmax - rmin))
+        if k < 0 or k >= nbins:
+            continue
+        for o in range(2 if a != b else 1):
+            x = a if o == 0 else b
+            y = b if o == 0 else a
+            for s in range(ptr1[x], ptr1[x + 1]):
+                p = pos1[s]
+                for r in range(ptr2[y], ptr2[y + 1]):
+                    out[p, pos2[r], k] += 1.0
+
+
+class RDF_s(InterRDF_s):
+    r"""Site-specific pair distribution functions through the MLG; a
+    drop-in for :class:`MDAnalysis.analysis.rdf.InterRDF_s`.
+
+    ``results.count[i][p, q]`` is the histogram of the distance between
+    atom p of ``ags[i][0]`` and atom q of ``ags[i][1]``; counts are
+    InterRDF_s's bin by bin (its distances, as for :class:`RDF`, and its
+    bin arithmetic ``int((d - rmin) * nbins / (rmax - rmin))``), and the
+    normalisation is its own (inherited).  One grid over all atoms of all
+    pairs of groups, kept across frames.  Backends as :class:`RDF`.
+
+    Parameters
+    ----------
+    u : Universe
+        Kept for InterRDF_s's signature (it warns that it is superfluous).
+    ags : list of [AtomGroup, AtomGroup]
+    nbins, range, norm, density, backend
+        As InterRDF_s (``density=True`` is the deprecated
+        ``norm='density'``).
+    template : odd int, optional
+        Count through Boris's W^3 template instead of exactly.
+    """
+
+    _analysis_algorithm_is_parallelizable = True
+
+    @classmethod
+    def get_supported_backends(cls):
+        return ("serial", "multiprocessing", "dask")
+
+    def __init__(self, u, ags, nbins=75, range=(0.0, 15.0), norm="rdf",
+                 density=False, backend="serial", template=None, **kwargs):
+        try:
+            pairs = [tuple(p) for p in ags]
+        except TypeError:
+            raise ValueError("ags: expected a list of [AtomGroup, AtomGroup] pairs") from None
+        if not pairs or any(len(p) != 2 for p in pairs):
+            raise ValueError("ags: expected a non-empty list of [AtomGroup, AtomGroup] pairs")
+        super().__init__(u, ags, nbins=nbins, range=range, norm=norm,
+                         density=density, backend=backend, **kwargs)
+        self.rdf_settings["bins"] = _check_range_args(nbins, range)
+        _check_distance_backend(backend)
+        universe = pairs[0][0].universe
+        for i, (a1, a2) in enumerate(pairs):
+            for name, g in (("[0]", a1), ("[1]", a2)):
+                if len(g) == 0:
+                    raise ValueError(f"ags[{i}]{name}: the atom group is empty")
+                if g.universe is not universe:
+                    raise ValueError(f"ags[{i}]{name}: must belong to the universe "
+                                     "of ags[0][0]")
+        self.template = _check_template(template)
+        self._pairs = None
+        self.grid_stats = None
+
+    def _setup_sites(self):
+        ags = self.ags
+        self._sizes = [(len(a1), len(a2)) for a1, a2 in ags]
+        ixs = [np.asarray(g.ix) for pair in ags for g in pair]
+        self._union, inv = np.unique(np.concatenate(ixs), return_inverse=True)
+        inv = inv.reshape(-1)
+        nu = len(self._union)
+        self._maps = []
+        off = 0
+        for a1, a2 in ags:
+            u1 = inv[off:off + len(a1)]
+            off += len(a1)
+            u2 = inv[off:off + len(a2)]
+            off += len(a2)
+            maps = []
+            for u in (u1, u2):
+                order = np.argsort(u, kind="stable")
+                ptr = np.zeros(nu + 1, np.int64)
+                ptr[1:] = np.cumsum(np.bincount(u, minlength=nu))
+                maps += [ptr, order.astype(np.int64)]
+            self._maps.append((u1, u2, maps))
+        self._ix = ixs
+
+    def _prepare(self):
+        super()._prepare()
+        self._pairs = _PairSource(self.template)
+        self._setup_sites()
+
+    def _single_frame(self):
+        ts = self._ts
+        ixs = [np.asarray(g.ix) for pair in self.ags for g in pair]
+        if any(not np.array_equal(a, b) for a, b in zip(ixs, self._ix)):
+            # updating groups: InterRDF_s sized its arrays at the first frame
+            if [(len(a1), len(a2)) for a1, a2 in self.ags] != self._sizes:
+                raise ValueError(f"ags: a group changed size at frame {ts.frame}; "
+                                 "InterRDF_s keeps one count per atom pair")
+            self._setup_sites()
+            self._pairs.grid = None
+        box32 = _check_box(ts, self.norm)
+        pos32 = np.ascontiguousarray(ts.positions[self._union], dtype=np.float32)
+        rmin, rmax = (float(x) for x in self.rdf_settings["range"])
+        pi, pj = _frame_candidates(self._pairs, ts, pos32, rmax)
+        nbins = int(self.rdf_settings["bins"])
+        for i, (u1, u2, maps) in enumerate(self._maps):
+            conv = _MDAConvention(pos32, box32, len(u1), len(u2), u1, u2, rmax)
+            _mda_s_counts(pi, pj, conv.coords, conv.kind, conv.box, conv.half,
+                          conv.inv, conv.nsgrid, rmax, rmax * rmax, rmin, rmax,
+                          nbins, *maps, self.results.count[i])
+        if self.norm == "rdf":
+            self.results.volume_cum += ts.volume
+
+    def _conclude(self):
+        super()._conclude()
+        if self._pairs is not None:
+            self.grid_stats = self._pairs.stats()
+        self._pairs = None
+
+    def _configure_backend(self, backend, n_workers, unsupported_backend=False):
+        return _configure(self, backend, n_workers, unsupported_backend,
+                          super()._configure_backend)
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_pairs"] = None
         return state
 
 

@@ -279,9 +279,9 @@ def test_bad_groups_raise(water_tric):
         RDF(empty, water_tric.atoms)
     with pytest.raises(ValueError, match="g2"):
         RDF(water_tric.atoms, empty)
-    twice = water_tric.atoms[:6] + water_tric.atoms[:3]
-    with pytest.raises(ValueError, match="exclusion_block"):
-        RDF(twice, twice, exclusion_block=(3, 3))
+    for block in [(0, 3), (3,), "ab", (1.5, 2)]:
+        with pytest.raises(ValueError, match="exclusion_block"):
+            RDF(water_tric.atoms, water_tric.atoms, exclusion_block=block)
 
 
 def test_duplicate_atoms_count_twice(water_tric):
@@ -289,6 +289,19 @@ def test_duplicate_atoms_count_twice(water_tric):
     twice = g + g[:10]
     ref, got = both(twice, g, range=(0.0, 8.0))
     assert_same(ref, got)
+
+
+@pytest.mark.parametrize("block", [(3, 3), (2, 5), (1, 1)])
+def test_exclusion_block_with_atom_listed_twice(water_tric, block):
+    """An atom listed twice sits in two blocks (InterRDF masks by position
+    in the group): accepted, counts and normalisation as InterRDF's."""
+    twice = water_tric.atoms[:30] + water_tric.atoms[:9] + water_tric.atoms[60:90]
+    other = water_tric.atoms[:45] + water_tric.atoms[3:6]
+    ref, got = both(twice, other, stop=3, range=(0.0, 8.0), exclusion_block=block)
+    assert_same(ref, got)
+    # the masked pairs are really gone: fewer than without the exclusion
+    assert got.results.count.sum() < RDF(twice, other, range=(0.0, 8.0)).run(
+        stop=3).results.count.sum()
 
 
 # --------------------------------------------------------------------------
