@@ -49,29 +49,32 @@ Why the query is exact
 Every box test is padded by ``2 * max deviation + 1e-9 * scale`` so
 round-off can only add candidates, never lose one.
 
-Full lists (``find_pairs``, default ``strategy="store"``): blocks are
-scanned in a fixed number of chunks (8) on numba's thread count of Python
-threads (the kernels release the GIL).  Each chunk scans only candidate
-blocks ``B >= A`` (and, for ``B == A``, non-negative images and slots
-``u >= t``), so every unordered pair {(i, j, S), (j, i, -S)} is met once;
-it stores (slot i, slot j, image) and counts the pair at both atoms in its
-own row of a (chunks x atoms) table.  Prefix sums over atoms, then chunks,
-give every chunk its own cursor into every atom's segment, and a second
-pass writes each pair at i and its mirror ``(j, i, -D, d, -S)`` at j (the
-mirror is bitwise what ASE computes for it: IEEE negation is exact).  The
-output is sorted by atom index ``i`` and, with the chunk count fixed,
-identical for any number of threads.  Within one ``i`` pairs come in grid
-order (deterministic for a given grid).  ``strategy="mirror"`` does the
-same with a count pass instead of the scratch (no scratch memory, one scan
-more); ``"direct"`` scans every atom's whole neighbourhood (count pass and
-fill pass, ``prange`` over blocks).  ``half=True`` returns each unordered
-pair once, grouped by grid block (for pair sums).
+One scan, several outputs
+-------------------------
+The scan (:func:`_scan`) visits blocks in chunks on Python threads (the
+kernel releases the GIL).  Each chunk scans only candidate blocks
+``B >= A`` (and, for ``B == A``, non-negative images and slots ``u >= t``),
+so every unordered pair {(i, j, S), (j, i, -S)} is met once, and writes it
+as (rank of j, code of S) in the row of i: a :class:`PairList`, the half
+list in compressed sparse rows, atoms numbered by their *rank* along the
+grid's blocks.  The rows come out in rank order whatever the chunking, so
+the list is the same for any number of threads.  Consumers read it: the
+calculator sums pair potentials over it directly
+(:mod:`ase_mlg.potentials`); :func:`find_pairs` writes ASE's arrays from
+it, each pair once in grid order (``half=True``) or at both atoms sorted by
+atom (the mirror is ``(j, i, -D, d, -S)``, bitwise what ASE computes for
+it), in a fixed number of row groups with a cursor per group and atom, so
+that the output too is the same for any number of threads.
 """
 
-import numpy as np
-from numba import njit, prange
+import os
 
-__all__ = ["BlockIndex", "find_pairs", "CUT_SCALAR", "CUT_RADII", "CUT_TABLE"]
+import numba
+import numpy as np
+from numba import njit
+
+__all__ = ["BlockIndex", "PairList", "half_list", "find_pairs", "CUT_SCALAR",
+           "CUT_RADII", "CUT_TABLE"]
 
 CUT_SCALAR, CUT_RADII, CUT_TABLE = 0, 1, 2
 
@@ -214,6 +217,11 @@ class BlockIndex:
              self.glob, self.dev, self.natom_blk) = _gather(
                 grid._sites, grid._coords, g, grid.positions, self.cell,
                 self.periods, shape, bs, nb)
+            # ranks: atoms numbered along the blocks (holes skipped)
+            filled = self.slot_atom >= 0
+            self.order = self.slot_atom[filled]
+            self.slot_rank = np.full(len(filled), -1, np.int32)
+            self.slot_rank[filled] = np.arange(n, dtype=np.int32)
             self.volume = float(abs(np.linalg.det(self.cell)))
             scale = max(1.0, float(np.abs(self.glob).max()),
                         float(np.abs(grid.positions).max()),
@@ -221,6 +229,7 @@ class BlockIndex:
         else:
             scale = 1.0
             self.dev = 0.0
+            self.order = np.zeros(0, np.int64)
             self.volume = 0.0
         self.scale = scale
 
@@ -409,205 +418,30 @@ def _prepare(A, cand, cf, qlo, qhi, nb, bsz, slot_atom, BB, R2, S1, glob,
     return cand, cf, ncand
 
 
-@njit(cache=True, parallel=True)
-def _scan(chunks, nb, bsz, slot_atom, P, Q, G, MS, BB, R2, S1, glob, natom_blk,
-          periods, cell, pad, ftol, rat, mode, cut, rs, ts, table,
-          self_interaction, half, mirror, fill, counts, start, cur,
-          out_i, out_j, out_d, out_D, out_S, want_j, want_d, want_D, want_S):
-    """Count (``fill=False``: counts[a] per atom a) or write (``fill=True``,
-    at ``start[a]``) all pairs (a, j, S) with d < cutoff(a, j).
+@njit(cache=True, nogil=True)
+def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, Q, G, MS, BB, R2, S1,
+          glob, natom_blk, periods, cell, pad, ftol, rat, mode, cut, rs, ts,
+          table, self_interaction, slo, sdim, out_j, out_c, lo, cap, rowcount):
+    """Half scan of blocks ``[b0, b1)``: every unordered pair
+    {(i, j, S), (j, i, -S)} with d < cutoff(i, j) once.
 
     Candidates are tested on positions gathered in block order (``P``, in
     the frame of the stored coordinates); a pair whose fast distance is
-    farther than ``ftol`` from its cutoff is decided by it, the others (and
-    every pair written out) on ``D = q[j] - q[i] + S @ cell`` from the
-    original positions ``Q``, as ASE computes it.
+    farther than ``ftol`` from its cutoff is decided by it, the others on
+    ``D = q[j] - q[i] + S @ cell`` from the original positions ``Q``, as
+    ASE computes it.  Each pair is kept from the side whose (block, image,
+    slot) comes first: candidate blocks ``B >= A``, and for ``B == A`` the
+    non-negative images and slots ``u >= t``.
 
-    ``half``: keep each unordered pair once (the one whose (slot, image)
-    comes first); counts/start are then per *block* instead of per atom.
-
-    ``mirror`` (with ``half``): a full list sorted by atom from the half
-    scan.  ``cur[ch, a]`` counts (``fill=False``) the pairs chunk ``ch``
-    gives atom ``a`` -- as first atom or as the mirrored second one -- and
-    then (``fill=True``) is the cursor where chunk ``ch`` writes atom
-    ``a``'s next pair; each chunk owns its row, so there are no races and
-    the order is fixed by the (fixed) number of chunks.  ``out_i`` is filled
-    by the caller.
+    Kept pairs are written in row order (the row is the rank of slot ``t``)
+    as the rank of ``u`` and the code of ``S`` (``((S0 - slo0) * sdim1 +
+    S1 - slo1) * sdim2 + S2 - slo2``) at ``out_j/out_c[lo:lo + cap]``;
+    ``rowcount[rank of t]`` gets the row length.  Returns the number of
+    pairs found, which may exceed ``cap``: nothing beyond ``cap`` is written
+    and the caller scans again with room.  Runs without the GIL, one call
+    per chunk of blocks on Python threads.
     """
-    nchunk = chunks.shape[0] - 1
-    for ch in prange(nchunk):
-        cand = np.empty((64, 4), dtype=np.int64)
-        cf = np.empty((64, 9))
-        hit = np.empty(bsz, dtype=np.int64)
-        dist2 = np.empty(bsz)
-        qlo = np.empty(3)
-        qhi = np.empty(3)
-        for A in range(chunks[ch], chunks[ch + 1]):
-            if natom_blk[A] == 0:
-                continue
-            cand, cf, ncand = _prepare(A, cand, cf, qlo, qhi, nb, bsz,
-                                       slot_atom, BB, R2, S1, glob, periods,
-                                       cell, pad, rat, half)
-            tA0 = A * bsz
-            blkcount = 0
-            for t in range(tA0, tA0 + bsz):
-                a = slot_atom[t]
-                if a < 0:
-                    continue
-                Ri = rat[a] + pad
-                Rf = rat[a] + ftol
-                Rf2 = Rf * Rf
-                glo0 = G[0, t] - Ri
-                ghi0 = G[0, t] + Ri
-                glo1 = G[1, t] - Ri
-                ghi1 = G[1, t] + Ri
-                glo2 = G[2, t] - Ri
-                ghi2 = G[2, t] + Ri
-                px = P[0, t]
-                py = P[1, t]
-                pz = P[2, t]
-                mt0 = MS[t, 0]
-                mt1 = MS[t, 1]
-                mt2 = MS[t, 2]
-                ra = rs[t]
-                ta = ts[t]
-                n = 0
-                pos = 0
-                if fill:
-                    if half:
-                        pos = start[A] + blkcount
-                    else:
-                        pos = start[a]
-                for c in range(ncand):
-                    # branch-free box test, one branch
-                    ok = ((cf[c, 0] <= ghi0) & (cf[c, 3] >= glo0)
-                          & (cf[c, 1] <= ghi1) & (cf[c, 4] >= glo1)
-                          & (cf[c, 2] <= ghi2) & (cf[c, 5] >= glo2))
-                    if not ok:
-                        continue
-                    B = cand[c, 0]
-                    m0 = cand[c, 1]
-                    m1 = cand[c, 2]
-                    m2 = cand[c, 3]
-                    mzero = m0 == 0 and m1 == 0 and m2 == 0
-                    qx = px - cf[c, 6]
-                    qy = py - cf[c, 7]
-                    qz = pz - cf[c, 8]
-                    u0 = B * bsz
-                    kmin = 0
-                    if half and B == A and mzero:
-                        kmin = t - u0
-                    # branch-free pre-filter: compact the slots that pass
-                    npass = 0
-                    for k in range(bsz):
-                        u = u0 + k
-                        dx = P[0, u] - qx
-                        dy = P[1, u] - qy
-                        dz = P[2, u] - qz
-                        d2f = dx * dx + dy * dy + dz * dz
-                        hit[npass] = k
-                        dist2[npass] = d2f
-                        npass += (d2f < Rf2) & (k >= kmin)
-                    for h in range(npass):
-                        u = u0 + hit[h]
-                        d2f = dist2[h]
-                        if u == t and mzero and not self_interaction:
-                            continue
-                        if mode == 0:
-                            rc = cut
-                        elif mode == 1:
-                            rc = ra + rs[u]
-                        else:
-                            rc = table[ta, ts[u]]
-                        hi = rc + ftol
-                        if d2f >= hi * hi:
-                            continue
-                        lo = rc - ftol
-                        exact = fill or lo <= 0.0 or d2f >= lo * lo
-                        if exact:
-                            S0 = m0 + MS[u, 0] - mt0
-                            S1_ = m1 + MS[u, 1] - mt1
-                            S2 = m2 + MS[u, 2] - mt2
-                            # as ASE: positions[j] - positions[i] + S @ cell
-                            Dx = (Q[0, u] - Q[0, t]) + (
-                                S0 * cell[0, 0] + S1_ * cell[1, 0] + S2 * cell[2, 0])
-                            Dy = (Q[1, u] - Q[1, t]) + (
-                                S0 * cell[0, 1] + S1_ * cell[1, 1] + S2 * cell[2, 1])
-                            Dz = (Q[2, u] - Q[2, t]) + (
-                                S0 * cell[0, 2] + S1_ * cell[1, 2] + S2 * cell[2, 2])
-                            d = np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz)
-                            if not d < rc:
-                                continue
-                            if fill and mirror:
-                                p = cur[ch, a]
-                                cur[ch, a] = p + 1
-                                if want_j:
-                                    out_j[p] = slot_atom[u]
-                                if want_d:
-                                    out_d[p] = d
-                                if want_D:
-                                    out_D[p, 0] = Dx
-                                    out_D[p, 1] = Dy
-                                    out_D[p, 2] = Dz
-                                if want_S:
-                                    out_S[p, 0] = S0
-                                    out_S[p, 1] = S1_
-                                    out_S[p, 2] = S2
-                                if not (u == t and mzero):
-                                    jj = slot_atom[u]
-                                    p = cur[ch, jj]
-                                    cur[ch, jj] = p + 1
-                                    if want_j:
-                                        out_j[p] = a
-                                    if want_d:
-                                        out_d[p] = d
-                                    if want_D:
-                                        out_D[p, 0] = -Dx
-                                        out_D[p, 1] = -Dy
-                                        out_D[p, 2] = -Dz
-                                    if want_S:
-                                        out_S[p, 0] = -S0
-                                        out_S[p, 1] = -S1_
-                                        out_S[p, 2] = -S2
-                            elif fill:
-                                out_i[pos] = a
-                                if want_j:
-                                    out_j[pos] = slot_atom[u]
-                                if want_d:
-                                    out_d[pos] = d
-                                if want_D:
-                                    out_D[pos, 0] = Dx
-                                    out_D[pos, 1] = Dy
-                                    out_D[pos, 2] = Dz
-                                if want_S:
-                                    out_S[pos, 0] = S0
-                                    out_S[pos, 1] = S1_
-                                    out_S[pos, 2] = S2
-                                pos += 1
-                        if mirror and not fill and not (u == t and mzero):
-                            # count the mirrored pair at its first atom
-                            cur[ch, slot_atom[u]] += 1
-                        n += 1
-                blkcount += n
-                if mirror:
-                    if not fill:
-                        cur[ch, a] += n
-                elif not fill and not half:
-                    counts[a] = n
-            if not fill and half and not mirror:
-                counts[A] = blkcount
-
-
-@njit(cache=True, nogil=True)
-def _scan_store(b0, b1, ch, nb, bsz, slot_atom, P, Q, G, MS, BB, R2, S1,
-                glob, natom_blk, periods, cell, pad, ftol, rat, mode, cut,
-                rs, ts, table, self_interaction, cur, cap, count_atoms):
-    """One pass over blocks [b0, b1) of the half scan (see ``_scan``):
-    count every kept pair at both its atoms in ``cur[ch]`` and store it as
-    (slot i, slot j, image m) for :func:`_scatter`.  Runs without the GIL,
-    one call per chunk on Python threads."""
-    buf = np.empty((max(cap, 16), 5), dtype=np.int32)
-    nbuf = 0
+    total = 0
     cand = np.empty((64, 4), dtype=np.int64)
     cf = np.empty((64, 9))
     hit = np.empty(bsz, dtype=np.int64)
@@ -641,6 +475,7 @@ def _scan_store(b0, b1, ch, nb, bsz, slot_atom, P, Q, G, MS, BB, R2, S1,
             ta = ts[t]
             n = 0
             for c in range(ncand):
+                # branch-free box test, one branch
                 ok = ((cf[c, 0] <= ghi0) & (cf[c, 3] >= glo0)
                       & (cf[c, 1] <= ghi1) & (cf[c, 4] >= glo1)
                       & (cf[c, 2] <= ghi2) & (cf[c, 5] >= glo2))
@@ -658,6 +493,7 @@ def _scan_store(b0, b1, ch, nb, bsz, slot_atom, P, Q, G, MS, BB, R2, S1,
                 kmin = 0
                 if B == A and mzero:
                     kmin = t - u0
+                # branch-free pre-filter: compact the slots that pass
                 npass = 0
                 for k in range(bsz):
                     u = u0 + k
@@ -671,8 +507,7 @@ def _scan_store(b0, b1, ch, nb, bsz, slot_atom, P, Q, G, MS, BB, R2, S1,
                 for h in range(npass):
                     u = u0 + hit[h]
                     d2f = dist2[h]
-                    self0 = u == t and mzero
-                    if self0 and not self_interaction:
+                    if u == t and mzero and not self_interaction:
                         continue
                     if mode == 0:
                         rc = cut
@@ -683,11 +518,12 @@ def _scan_store(b0, b1, ch, nb, bsz, slot_atom, P, Q, G, MS, BB, R2, S1,
                     hi = rc + ftol
                     if d2f >= hi * hi:
                         continue
-                    lo = rc - ftol
-                    if lo <= 0.0 or d2f >= lo * lo:
-                        S0 = m0 + MS[u, 0] - MS[t, 0]
-                        S1_ = m1 + MS[u, 1] - MS[t, 1]
-                        S2 = m2 + MS[u, 2] - MS[t, 2]
+                    S0 = m0 + MS[u, 0] - MS[t, 0]
+                    S1_ = m1 + MS[u, 1] - MS[t, 1]
+                    S2 = m2 + MS[u, 2] - MS[t, 2]
+                    lo_ = rc - ftol
+                    if lo_ <= 0.0 or d2f >= lo_ * lo_:
+                        # as ASE: positions[j] - positions[i] + S @ cell
                         Dx = (Q[0, u] - Q[0, t]) + (
                             S0 * cell[0, 0] + S1_ * cell[1, 0] + S2 * cell[2, 0])
                         Dy = (Q[1, u] - Q[1, t]) + (
@@ -696,125 +532,119 @@ def _scan_store(b0, b1, ch, nb, bsz, slot_atom, P, Q, G, MS, BB, R2, S1,
                             S0 * cell[0, 2] + S1_ * cell[1, 2] + S2 * cell[2, 2])
                         if not np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz) < rc:
                             continue
-                    if nbuf >= buf.shape[0]:
-                        new = np.empty((2 * buf.shape[0], 5), dtype=np.int32)
-                        new[:nbuf] = buf[:nbuf]
-                        buf = new
-                    buf[nbuf, 0] = t
-                    buf[nbuf, 1] = u
-                    buf[nbuf, 2] = m0
-                    buf[nbuf, 3] = m1
-                    buf[nbuf, 4] = m2
-                    nbuf += 1
-                    if count_atoms and not self0:
-                        cur[ch, slot_atom[u]] += 1
+                    if total < cap:
+                        out_j[lo + total] = slot_rank[u]
+                        out_c[lo + total] = ((S0 - slo[0]) * sdim[1]
+                                             + S1_ - slo[1]) * sdim[2] + S2 - slo[2]
+                    total += 1
                     n += 1
-            if count_atoms:
-                cur[ch, a] += n
-    return buf, nbuf
+            rowcount[slot_rank[t]] = n
+    return total
 
 
-@njit(cache=True, nogil=True)
-def _scatter(buf, nbuf, ch, cur, slot_atom, Q, MS, cell, out_j, out_d, out_D,
-             out_S, want_j, want_d, want_D, want_S):
-    """Write the stored half pairs of chunk ``ch`` at both atoms (cursor
-    ``cur[ch, a]``), with D, d, S computed as ASE does; the mirror is
-    ``(j, i, -D, d, -S)`` (bitwise what ASE computes for it)."""
-    for e in range(nbuf):
-        t = buf[e, 0]
-        u = buf[e, 1]
-        m0 = buf[e, 2]
-        m1 = buf[e, 3]
-        m2 = buf[e, 4]
-        a = slot_atom[t]
-        j = slot_atom[u]
-        S0 = m0 + MS[u, 0] - MS[t, 0]
-        S1_ = m1 + MS[u, 1] - MS[t, 1]
-        S2 = m2 + MS[u, 2] - MS[t, 2]
-        Dx = (Q[0, u] - Q[0, t]) + (
-            S0 * cell[0, 0] + S1_ * cell[1, 0] + S2 * cell[2, 0])
-        Dy = (Q[1, u] - Q[1, t]) + (
-            S0 * cell[0, 1] + S1_ * cell[1, 1] + S2 * cell[2, 1])
-        Dz = (Q[2, u] - Q[2, t]) + (
-            S0 * cell[0, 2] + S1_ * cell[1, 2] + S2 * cell[2, 2])
-        d = np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz)
-        p = cur[ch, a]
-        cur[ch, a] = p + 1
-        if want_j:
-            out_j[p] = j
-        if want_d:
-            out_d[p] = d
-        if want_D:
-            out_D[p, 0] = Dx
-            out_D[p, 1] = Dy
-            out_D[p, 2] = Dz
-        if want_S:
-            out_S[p, 0] = S0
-            out_S[p, 1] = S1_
-            out_S[p, 2] = S2
-        if u == t and m0 == 0 and m1 == 0 and m2 == 0:
-            continue
-        p = cur[ch, j]
-        cur[ch, j] = p + 1
-        if want_j:
-            out_j[p] = a
-        if want_d:
-            out_d[p] = d
-        if want_D:
-            out_D[p, 0] = -Dx
-            out_D[p, 1] = -Dy
-            out_D[p, 2] = -Dz
-        if want_S:
-            out_S[p, 0] = -S0
-            out_S[p, 1] = -S1_
-            out_S[p, 2] = -S2
+# --------------------------------------------------------------------------
+# the half list (CSR in grid order) and its consumers
+# --------------------------------------------------------------------------
+
+class PairList:
+    """A half pair list in grid order (compressed sparse rows).
+
+    Atoms are numbered by *rank*: their order along the grid's blocks, so
+    atoms close in space are close in memory whatever the input order.
+
+    Attributes
+    ----------
+    order : int64[N]
+        Atom index of each rank.
+    rowptr : int64[N + 1]
+        Pairs of rank ``t`` are ``rowptr[t]:rowptr[t + 1]``.
+    nbr : int32[M]
+        Rank of the second atom of each pair.
+    code : uint8[M] or int32[M]
+        Index of the pair's cell shift in ``shifts``.
+    shifts : int64[K, 3]
+        Cell shifts S: the pair is ``D = x[j] - x[i] + S @ cell``.
+    zero_code : int
+        Code of S = 0.
+    """
+
+    def __init__(self, order, rowptr, nbr, code, shifts, zero_code):
+        self.order = order
+        self.rowptr = rowptr
+        self.nbr = nbr
+        self.code = code
+        self.shifts = shifts
+        self.zero_code = zero_code
+
+    def __len__(self):
+        return int(self.rowptr[-1])
+
+    @property
+    def natoms(self):
+        return len(self.order)
+
+    @property
+    def nbytes(self):
+        """Memory held by the list's arrays, bytes."""
+        return sum(a.nbytes for a in (self.order, self.rowptr, self.nbr,
+                                      self.code, self.shifts))
 
 
-@njit(cache=True, nogil=True)
-def _emit_half(buf, nbuf, off, slot_atom, Q, MS, cell, out_i, out_j, out_d,
-               out_D, out_S, want_j, want_d, want_D, want_S):
-    """Write the stored half pairs of one chunk at ``off``, ``off + 1``, ..."""
-    for e in range(nbuf):
-        t = buf[e, 0]
-        u = buf[e, 1]
-        S0 = buf[e, 2] + MS[u, 0] - MS[t, 0]
-        S1_ = buf[e, 3] + MS[u, 1] - MS[t, 1]
-        S2 = buf[e, 4] + MS[u, 2] - MS[t, 2]
-        p = off + e
-        out_i[p] = slot_atom[t]
-        if want_j:
-            out_j[p] = slot_atom[u]
-        if want_d or want_D:
-            Dx = (Q[0, u] - Q[0, t]) + (
-                S0 * cell[0, 0] + S1_ * cell[1, 0] + S2 * cell[2, 0])
-            Dy = (Q[1, u] - Q[1, t]) + (
-                S0 * cell[0, 1] + S1_ * cell[1, 1] + S2 * cell[2, 1])
-            Dz = (Q[2, u] - Q[2, t]) + (
-                S0 * cell[0, 2] + S1_ * cell[1, 2] + S2 * cell[2, 2])
-            if want_d:
-                out_d[p] = np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz)
-            if want_D:
-                out_D[p, 0] = Dx
-                out_D[p, 1] = Dy
-                out_D[p, 2] = Dz
-        if want_S:
-            out_S[p, 0] = S0
-            out_S[p, 1] = S1_
-            out_S[p, 2] = S2
+def _shift_codes(slo, shi):
+    """Code table for integer shifts in the box [slo, shi]: dims, the
+    shift of every code, the code dtype (one byte when it fits)."""
+    sdim = (shi - slo + 1).astype(np.int64)
+    k = np.indices(sdim).reshape(3, -1).T
+    shifts = np.ascontiguousarray(k + slo, dtype=np.int64)
+    dtype = np.uint8 if len(shifts) <= 256 else np.int32
+    return sdim, shifts, dtype
+
+
+def _shift_bounds(index, rmax, pad):
+    """Bounds of ``S = m + MS[u] - MS[t]`` over every pair the scan can
+    keep: the image range ``m`` of the global box (as in ``_prepare``) and
+    the range of the stored images ``MS``."""
+    glob, periods = index.glob, index.periods
+    atoms = index.slot_atom >= 0
+    ms_lo = index.MS[atoms].min(axis=0)
+    ms_hi = index.MS[atoms].max(axis=0)
+    slo = np.zeros(3, np.int64)
+    shi = np.zeros(3, np.int64)
+    R = rmax + pad
+    for c in range(3):
+        if periods[c] > 0.0:
+            mlo = int(np.ceil((glob[c] - R - glob[3 + c]) / periods[c]))
+            mhi = int(np.floor((glob[3 + c] + R - glob[c]) / periods[c]))
+            slo[c] = mlo + ms_lo[c] - ms_hi[c]
+            shi[c] = mhi + ms_hi[c] - ms_lo[c]
+    return slo, shi
 
 
 _POOL = [None, 0]
+
+
+def _reset_pool():
+    # a forked child inherits the executor but not its threads: start anew
+    _POOL[0], _POOL[1] = None, 0
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_reset_pool)
+
 MAX_IMAGES = 1e7  # periodic images per query: 2 rc / h + 1 per axis
 PARALLEL_MIN_ATOMS = 5000  # below this, thread hand-offs cost more than they save
+NGROUP = 8  # row groups of full lists: fixed, so the output never depends on threads
 
 
-def _run_chunks(func, args_of, nchunk, natoms):
-    """Run ``func(*args_of(ch))`` for every chunk, on numba's thread count
-    of Python threads (the kernels release the GIL); results in chunk
-    order.  Small systems run serially."""
-    import numba
-    nth = max(1, min(numba.get_num_threads(), nchunk))
-    if nth == 1 or natoms < PARALLEL_MIN_ATOMS:
+def _threads(natoms):
+    return 1 if natoms < PARALLEL_MIN_ATOMS else max(1, numba.get_num_threads())
+
+
+def _run_chunks(func, args_of, nchunk, nth):
+    """Run ``func(*args_of(ch))`` for every chunk on ``nth`` Python threads
+    (the kernels release the GIL); results in chunk order."""
+    nth = min(nth, nchunk)
+    if nth == 1:
         return [func(*args_of(ch)) for ch in range(nchunk)]
     if _POOL[1] != nth:
         from concurrent.futures import ThreadPoolExecutor
@@ -825,49 +655,40 @@ def _run_chunks(func, args_of, nchunk, natoms):
     return list(_POOL[0].map(lambda ch: func(*args_of(ch)), range(nchunk)))
 
 
-def find_pairs(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
-               table=None, self_interaction=False, half=False,
-               quantities="ijdDS", nchunk=None, strategy="store"):
-    """All pairs within the cutoff, exactly (see module doc).
+def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
+              table=None, self_interaction=False, pairs_per_atom=None,
+              reuse=None):
+    """Every pair within the cutoff once, exactly (see module doc), as a
+    :class:`PairList` in grid order.
 
     Parameters
     ----------
     index : BlockIndex
     rat : float64 array (N,)
         Per-atom query radius: an upper bound of the cutoff of every pair
-        the atom is in (the scan's filter radius).
+        the atom is in (the scan's filter radius), Å.
     mode : CUT_SCALAR | CUT_RADII | CUT_TABLE
         Pair cutoff ``cut``, ``radii[i] + radii[j]`` or
         ``table[types[i], types[j]]``; pairs with ``d < cutoff`` are kept.
     self_interaction : bool
         Keep the pair (i, i, S=0) when ``0 < cutoff``.
-    half : bool
-        Report each unordered pair {(i, j, S), (j, i, -S)} once (orientation
-        given by the grid); then the output is grouped by grid block, not
-        sorted by i.
-    quantities : str
-        Which of 'jdDS' to fill ('i' is always returned).
-    strategy : "store", "mirror" or "direct"
-        Full lists: scan half the pairs once, store them, then write each
-        at both atoms ("store", default: one scan, about 20 bytes per
-        unordered pair of scratch); scan half the pairs twice (count, then
-        write at both atoms: "mirror", no scratch); or scan every atom's full
-        neighbourhood twice ("direct").  Same pairs; the order within one
-        ``i`` differs.
-
-    Returns
-    -------
-    dict with keys 'i' and those of 'jdDS' requested: int64 / float64 arrays.
+    pairs_per_atom : float, optional
+        Expected pairs per atom (e.g. from the previous list); sizes the
+        output so that one scan suffices.  A short guess costs a second scan.
+    reuse : PairList, optional
+        A previous list whose arrays may be overwritten (no reallocation in
+        MD).
     """
     grid = index.grid
     n = grid.natoms
-    want = {q: (q in quantities) for q in "jdDS"}
-    if n == 0:
-        return _empty(want)
     rat = np.ascontiguousarray(rat, dtype=np.float64)
     radii = np.zeros(n) if radii is None else np.ascontiguousarray(radii, dtype=np.float64)
     types = np.zeros(n, np.int64) if types is None else np.ascontiguousarray(types, dtype=np.int64)
     table = np.zeros((1, 1)) if table is None else np.ascontiguousarray(table, dtype=np.float64)
+    if n == 0:
+        sdim, shifts, dtype = _shift_codes(np.zeros(3, np.int64), np.zeros(3, np.int64))
+        return PairList(np.zeros(0, np.int64), np.zeros(1, np.int64),
+                        np.zeros(0, np.int32), np.zeros(0, dtype), shifts, 0)
     Q, rs, ts = _slot_values(index.slot_atom, index.positions, radii, types, int(mode))
     rmax = float(rat.max())
     # every periodic image within rmax is visited: refuse a cutoff that
@@ -884,69 +705,137 @@ def find_pairs(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     # fast distance decides only pairs farther than ftol from the cutoff
     pad = 2.0 * index.dev + 1e-9 * (index.scale + rmax)
     ftol = 1e-9 * (index.scale + rmax)
+    slo, shi = _shift_bounds(index, rmax, pad)
+    sdim, shifts, dtype = _shift_codes(slo, shi)
+    zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
     nblk = int(np.prod(index.nb))
     bsz = int(np.prod(index.bs))
-    e_i = np.empty(0, np.int64)
-    e_f = np.empty(0)
-    e_2 = np.empty((0, 3))
-    e_2i = np.empty((0, 3), np.int64)
-    e_c = np.empty((0, 0), np.int64)
-    nslot = index.slot_atom.shape[0]
-    if strategy == "store" and nslot < 2 ** 31 - 1:
-        return _find_store(index, rat, Q, rs, ts, table, mode, cut, pad, ftol,
-                           self_interaction, want, nblk, bsz, half)
-    mirror = (not half) and strategy in ("mirror", "store")
-    if mirror:
-        nchunk = min(nblk, NCHUNK_MIRROR)
-    elif nchunk is None:
-        nchunk = min(nblk, 256)
-    chunks = np.linspace(0, nblk, nchunk + 1).astype(np.int64)
-    common = (chunks, index.nb, bsz, index.slot_atom, index.P, Q, index.G,
-              index.MS, index.BB, index.R2, index.S1, index.glob,
-              index.natom_blk, index.periods, index.cell, pad, ftol, rat,
-              int(mode), float(cut), rs, ts, table,
-              bool(self_interaction), bool(half or mirror), mirror)
-    if mirror:
-        cur = np.zeros((nchunk, n), dtype=np.int64)
-        counts = e_i
-        _scan(*common, False, counts, counts, cur, e_i, e_i, e_f, e_2, e_2i,
-              False, False, False, False)
-        total = cur.sum(axis=0)
-        start = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(total, out=start[1:])
-        # cursor of chunk ch for atom a: start[a] + pairs of earlier chunks
-        np.cumsum(cur, axis=0, out=cur)
-        _cursor(cur, start)
-    else:
-        cur = e_c
-        counts = np.zeros(nblk if half else n, dtype=np.int64)
-        _scan(*common, False, counts, counts, cur, e_i, e_i, e_f, e_2, e_2i,
-              False, False, False, False)
-        start = np.zeros(len(counts) + 1, dtype=np.int64)
-        np.cumsum(counts, out=start[1:])
-    m = int(start[-1])
-    out_i = np.empty(m, np.int64)
-    out_j = np.empty(m, np.int64) if want["j"] else e_i
-    out_d = np.empty(m) if want["d"] else e_f
-    out_D = np.empty((m, 3)) if want["D"] else e_2
-    out_S = np.empty((m, 3), np.int64) if want["S"] else e_2i
-    _scan(*common, True, counts, start, cur, out_i, out_j, out_d, out_D, out_S,
-          want["j"], want["d"], want["D"], want["S"])
-    if mirror:
-        _repeat_index(start, out_i)
-    res = {"i": out_i}
-    for q, arr in (("j", out_j), ("d", out_d), ("D", out_D), ("S", out_S)):
-        if want[q]:
-            res[q] = arr
-    return res
+    nth = _threads(n)
+    # more chunks than threads balances dense and empty regions; the list
+    # does not depend on the chunking (rows come out in rank order)
+    nchunk = min(nblk, 1 if nth == 1 else 8 * nth)
+    bounds = np.linspace(0, nblk, nchunk + 1).astype(np.int64)
+    atoms_in = np.add.reduceat(index.natom_blk, bounds[:-1]) if nblk else np.zeros(0)
+    if pairs_per_atom is None:
+        # a uniform density over the occupied box, generously
+        r = min(rmax, 1e6)
+        ext = np.maximum(index.glob[3:] - index.glob[:3], r)
+        pairs_per_atom = 1.3 * 0.5 * 4.19 * r ** 3 * n / max(float(np.prod(ext)), 1e-300)
+    pairs_per_atom = min(float(pairs_per_atom), 0.5 * n * (1 + 8 * 27) + 1)
+    caps = (1.1 * pairs_per_atom * atoms_in).astype(np.int64) + 64
+    rowcount = np.zeros(n, np.int64)
+    args = (index.nb, bsz, index.slot_atom, index.slot_rank, index.P, Q,
+            index.G, index.MS, index.BB, index.R2, index.S1, index.glob,
+            index.natom_blk, index.periods, index.cell, pad, ftol, rat,
+            int(mode), float(cut), rs, ts, table, bool(self_interaction),
+            slo, sdim)
+    for attempt in range(2):
+        lo = np.zeros(nchunk + 1, np.int64)
+        np.cumsum(caps, out=lo[1:])
+        total_cap = int(lo[-1])
+        if (reuse is not None and reuse.nbr.base is not None
+                and len(reuse.nbr.base) >= total_cap and reuse.code.dtype == dtype):
+            nbr, code = reuse.nbr.base, reuse.code.base
+        else:
+            nbr = np.empty(total_cap, np.int32)
+            code = np.empty(total_cap, dtype)
+        found = np.array(_run_chunks(
+            _scan, lambda ch: (bounds[ch], bounds[ch + 1]) + args
+            + (nbr, code, lo[ch], caps[ch], rowcount), nchunk, nth), dtype=np.int64)
+        if (found <= caps).all():
+            break
+        caps = found  # exact now; scan again into room of the right size
+        nbr = code = None
+    # close the gaps between chunks (moving down only, in chunk order)
+    offs = np.zeros(nchunk + 1, np.int64)
+    np.cumsum(found, out=offs[1:])
+    for ch in range(1, nchunk):
+        if offs[ch] != lo[ch] and found[ch]:
+            nbr[offs[ch]:offs[ch + 1]] = nbr[lo[ch]:lo[ch] + found[ch]]
+            code[offs[ch]:offs[ch + 1]] = code[lo[ch]:lo[ch] + found[ch]]
+    m = int(offs[-1])
+    rowptr = np.zeros(n + 1, np.int64)
+    np.cumsum(rowcount, out=rowptr[1:])
+    return PairList(index.order, rowptr, nbr[:m], code[:m], shifts, zero_code)
 
 
-NCHUNK_MIRROR = 8
+@njit(cache=True, nogil=True)
+def _count_full(rowptr, nbr, code, zero_code, order, r0, r1, cnt):
+    """Pairs each atom gets from rows [r0, r1) of a half list written at
+    both atoms (the mirror of a self pair (i, i, 0) is itself)."""
+    for t in range(r0, r1):
+        cnt[order[t]] += rowptr[t + 1] - rowptr[t]
+        for p in range(rowptr[t], rowptr[t + 1]):
+            u = nbr[p]
+            if not (u == t and code[p] == zero_code):
+                cnt[order[u]] += 1
+
+
+@njit(cache=True, nogil=True)
+def _write_pairs(rowptr, nbr, code, zero_code, shifts, order, X, cell, r0, r1,
+                 full, cur, out_i, out_j, out_d, out_D, out_S, want_j, want_d,
+                 want_D, want_S):
+    """Write the pairs of rows [r0, r1) with D, d, S computed as ASE does.
+
+    ``full``: each pair at both atoms, at the cursors ``cur[atom]``; the
+    mirror is ``(j, i, -D, d, -S)`` (bitwise what ASE computes for it:
+    IEEE negation is exact).  Otherwise once, at ``rowptr[t]``, with
+    ``out_i``."""
+    for t in range(r0, r1):
+        a = order[t]
+        for p in range(rowptr[t], rowptr[t + 1]):
+            u = nbr[p]
+            j = order[u]
+            k = code[p]
+            S0 = shifts[k, 0]
+            S1_ = shifts[k, 1]
+            S2 = shifts[k, 2]
+            Dx = (X[u, 0] - X[t, 0]) + (
+                S0 * cell[0, 0] + S1_ * cell[1, 0] + S2 * cell[2, 0])
+            Dy = (X[u, 1] - X[t, 1]) + (
+                S0 * cell[0, 1] + S1_ * cell[1, 1] + S2 * cell[2, 1])
+            Dz = (X[u, 2] - X[t, 2]) + (
+                S0 * cell[0, 2] + S1_ * cell[1, 2] + S2 * cell[2, 2])
+            d = np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz)
+            if full:
+                q = cur[a]
+                cur[a] = q + 1
+            else:
+                q = p
+                out_i[q] = a
+            if want_j:
+                out_j[q] = j
+            if want_d:
+                out_d[q] = d
+            if want_D:
+                out_D[q, 0] = Dx
+                out_D[q, 1] = Dy
+                out_D[q, 2] = Dz
+            if want_S:
+                out_S[q, 0] = S0
+                out_S[q, 1] = S1_
+                out_S[q, 2] = S2
+            if not full or (u == t and k == zero_code):
+                continue
+            q = cur[j]
+            cur[j] = q + 1
+            if want_j:
+                out_j[q] = a
+            if want_d:
+                out_d[q] = d
+            if want_D:
+                out_D[q, 0] = -Dx
+                out_D[q, 1] = -Dy
+                out_D[q, 2] = -Dz
+            if want_S:
+                out_S[q, 0] = -S0
+                out_S[q, 1] = -S1_
+                out_S[q, 2] = -S2
 
 
 @njit(cache=True)
 def _cursor(cur, start):
-    """cur holds inclusive prefix sums over chunks; make it exclusive and
+    """cur holds inclusive prefix sums over groups; make it exclusive and
     add the atom's start."""
     nch, n = cur.shape
     for a in range(n):
@@ -964,60 +853,61 @@ def _repeat_index(start, out_i):
             out_i[p] = a
 
 
-def _find_store(index, rat, Q, rs, ts, table, mode, cut, pad, ftol,
-                self_interaction, want, nblk, bsz, half):
-    n = index.grid.natoms
-    nchunk = min(nblk, NCHUNK_MIRROR)
-    chunks = np.linspace(0, nblk, nchunk + 1).astype(np.int64)
-    cur = np.zeros((1, 1) if half else (nchunk, n), dtype=np.int64)
-    # scratch guess: half the pairs of a uniform system, grown on demand
-    # (the radius is capped so that an absurd cutoff cannot overflow the guess)
-    cap = int(8 + 0.6 * min(float(np.mean(rat)), 1e6) ** 3 * 4.19 * n
-              / max(index.volume, 1e-300) * n / 2 / nchunk)
-    cap = min(cap, 4 * n * 64 // nchunk + 64)
-    args = (index.nb, bsz, index.slot_atom, index.P, Q, index.G, index.MS,
-            index.BB, index.R2, index.S1, index.glob, index.natom_blk,
-            index.periods, index.cell, pad, ftol, rat, int(mode), float(cut),
-            rs, ts, table, bool(self_interaction), cur, cap, not half)
-    bufs = _run_chunks(_scan_store,
-                       lambda ch: (chunks[ch], chunks[ch + 1], ch) + args,
-                       nchunk, n)
+def find_pairs(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
+               table=None, self_interaction=False, half=False,
+               quantities="ijdDS"):
+    """All pairs within the cutoff, exactly (see module doc), as
+    ``ase.neighborlist`` returns them.
+
+    Parameters are those of :func:`half_list`, and
+
+    half : bool
+        Report each unordered pair {(i, j, S), (j, i, -S)} once (orientation
+        given by the grid), in grid order; otherwise both, sorted by ``i``
+        (within one ``i`` in grid order: the same for any thread count).
+    quantities : str
+        Which of 'jdDS' to fill ('i' is always returned).
+
+    Returns
+    -------
+    dict with keys 'i' and those of 'jdDS' requested: int64 / float64 arrays.
+    """
+    pl = half_list(index, rat, mode, cut, radii, types, table, self_interaction)
+    n = pl.natoms
+    want = {q: (q in quantities) for q in "jdDS"}
+    X = np.ascontiguousarray(index.positions[pl.order]) if n else np.zeros((0, 3))
+    nth = _threads(n)
+    ngroup = max(1, min(NGROUP, n))
+    rows = np.linspace(0, n, ngroup + 1).astype(np.int64)
     if half:
-        offs = np.zeros(nchunk + 1, dtype=np.int64)
-        np.cumsum([nb_ for _, nb_ in bufs], out=offs[1:])
-        m = int(offs[-1])
-        res = _alloc(m, want)
-        _run_chunks(_emit_half,
-                    lambda ch: (bufs[ch][0], bufs[ch][1], offs[ch],
-                                index.slot_atom, Q, index.MS, index.cell,
-                                res["i"], res.get("j", _E_I), res.get("d", _E_F),
-                                res.get("D", _E_2), res.get("S", _E_2I),
-                                want["j"], want["d"], want["D"], want["S"]),
-                    nchunk, n)
-        return res
-    total = cur.sum(axis=0)
-    start = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(total, out=start[1:])
-    np.cumsum(cur, axis=0, out=cur)
-    _cursor(cur, start)
-    m = int(start[-1])
-    e_i = np.empty(0, np.int64)
-    out_i = np.empty(m, np.int64)
-    out_j = np.empty(m, np.int64) if want["j"] else e_i
-    out_d = np.empty(m) if want["d"] else np.empty(0)
-    out_D = np.empty((m, 3)) if want["D"] else np.empty((0, 3))
-    out_S = np.empty((m, 3), np.int64) if want["S"] else np.empty((0, 3), np.int64)
-    _run_chunks(_scatter,
-                lambda ch: (bufs[ch][0], bufs[ch][1], ch, cur, index.slot_atom,
-                            Q, index.MS, index.cell, out_j, out_d, out_D, out_S,
-                            want["j"], want["d"], want["D"], want["S"]),
-                nchunk, n)
-    del bufs
-    _repeat_index(start, out_i)
-    res = {"i": out_i}
-    for q, arr in (("j", out_j), ("d", out_d), ("D", out_D), ("S", out_S)):
+        cur = np.zeros(0, np.int64)
+        m = len(pl)
+    else:
+        # every group of rows counts its pairs per atom in its own row of
+        # the table, so each group gets its own cursor into every atom
+        cur = np.zeros((ngroup, n), dtype=np.int64)
+        _run_chunks(_count_full, lambda g: (pl.rowptr, pl.nbr, pl.code,
+                                            pl.zero_code, pl.order, rows[g],
+                                            rows[g + 1], cur[g]), ngroup, nth)
+        start = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(cur.sum(axis=0), out=start[1:])
+        np.cumsum(cur, axis=0, out=cur)
+        _cursor(cur, start)
+        m = int(start[-1])
+    res = {"i": np.empty(m, np.int64)}
+    out = {"j": _E_I, "d": _E_F, "D": _E_2, "S": _E_2I}
+    for q, shape, dt in (("j", (m,), np.int64), ("d", (m,), np.float64),
+                         ("D", (m, 3), np.float64), ("S", (m, 3), np.int64)):
         if want[q]:
-            res[q] = arr
+            res[q] = out[q] = np.empty(shape, dt)
+    _run_chunks(_write_pairs,
+                lambda g: (pl.rowptr, pl.nbr, pl.code, pl.zero_code, pl.shifts,
+                           pl.order, X, index.cell, rows[g], rows[g + 1],
+                           not half, cur[g] if not half else cur, res["i"],
+                           out["j"], out["d"], out["D"], out["S"], want["j"],
+                           want["d"], want["D"], want["S"]), ngroup, nth)
+    if not half:
+        _repeat_index(start, res["i"])
     return res
 
 
@@ -1025,29 +915,3 @@ _E_I = np.empty(0, np.int64)
 _E_F = np.empty(0)
 _E_2 = np.empty((0, 3))
 _E_2I = np.empty((0, 3), np.int64)
-
-
-def _alloc(m, want):
-    res = {"i": np.empty(m, np.int64)}
-    if want["j"]:
-        res["j"] = np.empty(m, np.int64)
-    if want["d"]:
-        res["d"] = np.empty(m)
-    if want["D"]:
-        res["D"] = np.empty((m, 3))
-    if want["S"]:
-        res["S"] = np.empty((m, 3), np.int64)
-    return res
-
-
-def _empty(want):
-    res = {"i": np.empty(0, np.int64)}
-    if want["j"]:
-        res["j"] = np.empty(0, np.int64)
-    if want["d"]:
-        res["d"] = np.empty(0)
-    if want["D"]:
-        res["D"] = np.empty((0, 3))
-    if want["S"]:
-        res["S"] = np.empty((0, 3), np.int64)
-    return res
