@@ -50,6 +50,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 
 import numpy as np
 from ase import units
@@ -77,7 +78,7 @@ TEMPLATE = {"mlg-exact": None, "mlg-w7": 7}
 
 def fcc_argon(natoms, seed=0):
     """fcc argon near ``natoms`` atoms, 90 K momenta, indices shuffled."""
-    m = max(1, int(round((natoms / 4) ** (1 / 3))))
+    m = round((fcc_argon_size(natoms) / 4) ** (1 / 3))
     atoms = bulk("Ar", "fcc", a=LATTICE, cubic=True).repeat(m)
     rng = np.random.default_rng(seed)
     atoms.positions += rng.normal(scale=0.05, size=atoms.positions.shape)
@@ -87,25 +88,37 @@ def fcc_argon(natoms, seed=0):
     return atoms[rng.permutation(len(atoms))]
 
 
-def liquid_argon(natoms, path, seed=0):
-    """Melt fcc argon (2 ps of NVE from 600 K, with asap3 if installed), then
-    give it fresh 90 K momenta and write it to ``path`` (an ASE .traj)."""
+def fcc_argon_size(natoms):
+    """The atom count of ``fcc_argon(natoms)``."""
+    return 4 * max(1, int(round((natoms / 4) ** (1 / 3)))) ** 3
+
+
+def liquid_argon(natoms, path, steps=400, seed=0):
+    """An equilibrated argon liquid near 90 K and 1 bar, written to ``path``
+    (an ASE .traj): fcc argon melted by ``steps`` NVE steps from 600 K, then
+    ``steps`` Langevin steps at 90 K and ``steps`` isotropic MTK NPT steps
+    at 90 K, 1 bar (the cell stays cubic), with asap3 if installed, else
+    ase-mlg, so that the timed NPT run starts near equilibrium instead of
+    from a hot, high-pressure configuration."""
     import ase.io
+    from ase.md.langevin import Langevin
+    from ase.md.nose_hoover_chain import IsotropicMTKNPT
     from ase.md.verlet import VelocityVerlet
     atoms = fcc_argon(natoms, seed)
     rng = np.random.default_rng(seed + 1)
     thermalize_momenta(atoms, temperature_K=600, rng=rng)
     try:
-        import asap3
-        atoms.calc = asap3.LennardJones([18], [EPS], [SIGMA], rCut=RC, modified=True)
+        atoms.calc = asap3_calc()
     except ImportError:
-        from ase_mlg import MLGCalculator
-        from ase_mlg.potentials import LennardJones
-        atoms.calc = MLGCalculator(LennardJones(sigma=SIGMA, epsilon=EPS, rc=RC), skin=SKIN)
-    VelocityVerlet(atoms, DT_FS * units.fs).run(400)
+        atoms.calc = mlg_calc(None)
+    dt = DT_FS * units.fs
+    VelocityVerlet(atoms, dt).run(steps)
+    with warnings.catch_warnings():  # Langevin's fixcm deprecation (ase 3.28)
+        warnings.simplefilter("ignore", FutureWarning)
+        Langevin(atoms, dt, temperature_K=T_K, friction=0.02 / units.fs, rng=rng).run(steps)
+    IsotropicMTKNPT(atoms, dt, temperature_K=T_K, pressure_au=P_BAR * units.bar,
+           tdamp=TDAMP_FS * units.fs, pdamp=PDAMP_FS * units.fs).run(steps)
     atoms.wrap()
-    thermalize_momenta(atoms, temperature_K=T_K, rng=rng)
-    Stationary(atoms)
     atoms.calc = None
     ase.io.write(path, atoms)
 
@@ -517,6 +530,8 @@ def main(argv=None):
     ap.add_argument("--ase-max", type=int, default=20000,
                     help="largest system for ASE's LennardJones (it needs minutes beyond)")
     ap.add_argument("--timeout", type=int, default=3600, help="seconds per worker")
+    ap.add_argument("--engines", default=",".join(ENGINES),
+                    help=f"engines to run, default {','.join(ENGINES)}")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
 
@@ -534,6 +549,7 @@ def main(argv=None):
     npt_size = args.npt_size or (864 if q else 4000)
     npt_steps = args.npt_steps or (10 if q else 40)
     main_threads = args.main_threads
+    engines = [e for e in ENGINES if e in args.engines.split(",")]
     p = {"steps": args.steps or (5 if q else 10), "repeats": args.repeats or (3 if q else 5),
          "calls": args.calls or (5 if q else 10), "warm": args.warm, "npt_steps": npt_steps,
          "warm_sizes": [864] if q else [864, 37_044]}
@@ -559,7 +575,8 @@ def main(argv=None):
           f"MD step = median of {p['repeats']} blocks of {p['steps']} steps after "
           f"{p['warm']} warm-up steps (ase-mlg: and until its pair list was rebuilt once)")
     wu = w.get("warmup", {})
-    print("- JIT warm-up before any timing: import ase_mlg "
+    print("- JIT warm-up before any timing (compiles on first use, later runs load numba's "
+          "on-disk cache): import ase_mlg "
           f"{fmt(wu.get('import_s'))} s, " + ", ".join(
               f"{k[4:-2]} atoms (exact + W=7, NVE + NPT) {fmt(v)} s"
               for k, v in wu.items() if k.startswith("jit_")) +
@@ -570,14 +587,14 @@ def main(argv=None):
     for n in sizes:
         res = {}
         for e in ENGINES:
-            if e == "ase" and n > args.ase_max:
+            if e not in engines or (e == "ase" and n > args.ase_max):
                 res[e] = None
                 continue
             res[e] = run_worker({"task": "speed", "engine": e, "params": p,
                                  "scene": {"kind": "fcc", "natoms": n}},
                                 main_threads, args.timeout)
         natoms = next((r["natoms"] for r in res.values() if get(r, "natoms")), n)
-        for e in ENGINES:
+        for e in engines:
             r = res[e]
             th = 1 if e in ("ase", "asap3") else main_threads
             if r is not None and "error" in r:
@@ -612,9 +629,12 @@ def main(argv=None):
     # -- 2. NVE vs NPT
     tmpdir = tempfile.mkdtemp(prefix="bench_md_")
     liquid = os.path.join(tmpdir, "liquid.traj")
-    liquid_argon(npt_size, liquid)
+    t = now()
+    liquid_ps = (100 if q else 400) * DT_FS / 1000
+    liquid_argon(npt_size, liquid, steps=100 if q else 400)
+    print(f"  liquid prepared in {now() - t:.1f} s", file=sys.stderr)
     rows = []
-    for e in ["mlg-exact", "mlg-w7", "asap3", "lammps"]:
+    for e in [e for e in ["mlg-exact", "mlg-w7", "asap3", "lammps"] if e in engines]:
         r = run_worker({"task": "npt", "engine": e, "params": p,
                         "scene": {"kind": "file", "path": liquid, "natoms": npt_size}},
                        1 if e == "asap3" else main_threads, args.timeout)
@@ -637,21 +657,25 @@ def main(argv=None):
            "Each run starts with a fresh calculator: its first list build is counted and timed. "
            "dF, dstress: after the NPT run, against ase.calculators.lj.LennardJones "
            "(smooth=False) on the final configuration.",
-           "Liquid: fcc argon melted by 2 ps of NVE from 600 K, then fresh 90 K momenta."])
+           f"Liquid: fcc argon melted by {liquid_ps:g} ps of NVE from 600 K, then {liquid_ps:g} ps "
+           f"of Langevin at 90 K and {liquid_ps:g} ps of isotropic MTK NPT at 90 K, 1 bar."])
 
     # -- 3. threads
     rows, base = [], {}
     for k in threads:
         res = {e: run_worker({"task": "speed", "engine": e, "params": p,
                               "scene": {"kind": "fcc", "natoms": thread_size}}, k, args.timeout)
-               for e in ["mlg-exact", "mlg-w7", "lammps"]}
+               for e in ["mlg-exact", "mlg-w7", "lammps"] if e in engines}
         for e, r in res.items():
             if k == threads[0]:
                 base[e] = r
+            if "error" in r:
+                rows.append([LABEL[e], k, "error: " + r["error"][:60]] + [None] * 4)
+                continue
             rows.append([LABEL[e], k, get(r, "force_ms"),
                          ratio(get(base[e], "force_ms"), get(r, "force_ms")),
                          get(r, "md_ms"), ratio(get(base[e], "md_ms"), get(r, "md_ms")),
-                         ratio(get(r, "md_ms"), get(res["lammps"], "md_ms"))])
+                         ratio(get(r, "md_ms"), get(res.get("lammps"), "md_ms"))])
     table(f"Threads: {fcc_argon_size(thread_size):,} atoms (ms)",
           ["engine", "threads", "force call", f"speed-up vs {threads[0]}", "MD step",
            f"speed-up vs {threads[0]}", "MD / LAMMPS (same threads)"], rows,
@@ -662,22 +686,18 @@ def main(argv=None):
     if args.large or args.memory:
         n = max(sizes)
         rows, res = [], {}
-        for e in ["mlg-exact", "asap3", "lammps"]:
+        for e in [e for e in ["mlg-exact", "asap3", "lammps"] if e in engines]:
             res[e] = run_worker({"task": "memory", "engine": e, "params": p,
                                  "scene": {"kind": "fcc", "natoms": n}},
                                 1 if e == "asap3" else main_threads, args.timeout)
         for e, r in res.items():
             rows.append([LABEL[e], get(r, "maxrss_mb"),
-                         ratio(get(r, "maxrss_mb"), get(res["asap3"], "maxrss_mb"))])
+                         ratio(get(r, "maxrss_mb"), get(res.get("asap3"), "maxrss_mb"))])
         table(f"Peak memory, {fcc_argon_size(n):,} atoms (MB, ru_maxrss of the process)",
               ["engine", "peak MB", "/ asap3"], rows,
               ["Each in its own process: imports, building the atoms, attaching the "
                "calculator, one force call and 11 MD steps; includes the interpreter and "
                "imported libraries (numba/llvmlite for ase-mlg)."])
-
-
-def fcc_argon_size(natoms):
-    return 4 * max(1, int(round((natoms / 4) ** (1 / 3)))) ** 3
 
 
 if __name__ == "__main__":
