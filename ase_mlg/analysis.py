@@ -1127,7 +1127,8 @@ def _ase_skipped_centres(atoms, pi, pj, centre, other, rmax):
     return np.array(skip, dtype=np.int64)
 
 
-def _ase_frame(atoms, bin_edges, elements, volume, pairs, ase_quirk):
+def _ase_frame(atoms, bin_edges, elements, volume, pairs, ase_quirk,
+               distance_matrix=None):
     """One image's RDF, as ``ase.geometry.rdf._get_rdf_per_frame``."""
     from ase.geometry.rdf import check_cell_and_r_max
     from ase.symbols import symbols2numbers
@@ -1156,6 +1157,20 @@ def _ase_frame(atoms, bin_edges, elements, volume, pairs, ase_quirk):
         other = atoms.numbers == B
         n = int(centre.sum())
         rho = int(other.sum()) / vol
+    if distance_matrix is not None:
+        # get_rdf's own branch: the given distances, nothing to search
+        if distance_matrix.shape != (natoms, natoms):
+            raise ValueError(f"distance_matrix: shape {distance_matrix.shape} does not "
+                             f"match {natoms} atoms")
+        indices = np.asarray(np.ceil(distance_matrix / dr), dtype=int)
+        if elements is None:
+            x = indices.ravel()
+        else:
+            x = indices[np.flatnonzero(centre)][:, np.flatnonzero(other)].ravel()
+        g = np.bincount(x, minlength=nbins + 1)[: nbins + 1].astype(float)
+        shell_vols = 4.0 * math.pi * dr * (bin_edges**2 + bin_edges * dr + dr**2 / 3.0)
+        g[1:] /= n * rho * shell_vols[:-1]
+        return g[1:]
     # get_rdf keeps ceil(d / dr) <= nbins: d up to rmax plus round-off
     pi, pj, S = pairs(atoms.positions, atoms.cell.array, atoms.pbc,
                       float(rmax) * (1.0 + 1e-9) + 1e-12, want_S=True)
@@ -1181,20 +1196,20 @@ def _iter_images(images):
         import ase.io
         path = os.fspath(images)
         if not os.path.isfile(path):
-            raise OSError(f"images: no such file {path!r}")
+            raise OSError(f"atoms: no such file {path!r}")
         try:
             # only ASE's reading is inside the try: errors raised by the
             # caller's processing of a frame are not thrown in here
             yield from ase.io.iread(path)
         except (OSError, ValueError, KeyError, IndexError, TypeError,
                 StopIteration, ase.io.formats.UnknownFileTypeError) as exc:
-            raise OSError(f"images: ASE cannot read {path!r}: {_one_line(exc)}") from None
+            raise OSError(f"atoms: ASE cannot read {path!r}: {_one_line(exc)}") from None
     else:
         yield from images
 
 
-def rdf(images, rmax, nbins, elements=None, volume=None, template=None,
-        ase_quirk=True):
+def rdf(atoms, rmax, nbins, distance_matrix=None, elements=None, no_dists=False,
+        volume=None, template=None, ase_quirk=True):
     r"""Radial distribution function of ASE images through the MLG; the
     numbers of :func:`ase.geometry.rdf.get_rdf` (ASE 3.29).
 
@@ -1215,9 +1230,13 @@ def rdf(images, rmax, nbins, elements=None, volume=None, template=None,
     and the result agrees with ``get_rdf`` to the last bit in practice
     (tested to 1e-12).
 
+    The arguments are ``get_rdf``'s, in its order (a positional
+    ``get_rdf`` call works unchanged); ``template`` and ``ase_quirk`` are
+    ours, after them.
+
     Parameters
     ----------
-    images : Atoms, iterable of Atoms, or path
+    atoms : Atoms, iterable of Atoms, or path
         One image, several, or an ASE-readable trajectory file (read frame
         by frame with ``ase.io.iread``: memory does not grow with its
         length).  Periodic cells need height >= 2 rmax on periodic axes.
@@ -1225,8 +1244,13 @@ def rdf(images, rmax, nbins, elements=None, volume=None, template=None,
         Largest distance (Å).
     nbins : int
         Number of bins.
+    distance_matrix : ndarray (natoms, natoms), optional
+        Distances to histogram instead of searching pairs (as ``get_rdf``:
+        e.g. ``atoms.get_all_distances(mic=True)``; used for every image).
     elements : (int | str, int | str), optional
         Partial RDF between two elements.
+    no_dists : bool
+        Return only g, not (g, r).
     volume : float, optional
         Volume (Å^3) used instead of each cell's volume.
     template : odd int, optional
@@ -1244,7 +1268,7 @@ def rdf(images, rmax, nbins, elements=None, volume=None, template=None,
         The RDF of the single image, or the mean over images of the
         per-image RDFs (as ``get_rdf`` of a list: ``np.mean(rdfs, axis=0)``).
     r : ndarray (nbins,)
-        Bin midpoints (Å).
+        Bin midpoints (Å); not returned with ``no_dists=True``.
 
     Raises
     ------
@@ -1270,19 +1294,37 @@ def rdf(images, rmax, nbins, elements=None, volume=None, template=None,
             symbols2numbers(elements)
         except (KeyError, ValueError, TypeError):
             raise ValueError(f"elements: unknown element in {elements!r}") from None
+    if not isinstance(no_dists, (bool, np.bool_)) and no_dists not in (0, 1):
+        raise TypeError(f"no_dists: expected True or False, got {no_dists!r}")
+    if volume is not None:
+        try:
+            volume = float(volume)
+        except (TypeError, ValueError):
+            raise ValueError(f"volume: expected a number (Å^3), got {volume!r}") from None
+    if distance_matrix is not None:
+        try:
+            distance_matrix = np.asarray(distance_matrix, dtype=float)
+        except (TypeError, ValueError):
+            raise ValueError("distance_matrix: expected a (natoms, natoms) array of "
+                             "distances") from None
+        if distance_matrix.ndim != 2 or distance_matrix.shape[0] != distance_matrix.shape[1]:
+            raise ValueError(f"distance_matrix: expected a square (natoms, natoms) "
+                             f"array, got shape {distance_matrix.shape}")
     bin_edges = np.linspace(0.0, rmax, nbins + 1)
     pairs = _PairSource(template)
     total = None
     nimages = 0
     # a running sum in image order is np.mean(rdfs, axis=0) to the last bit
-    for atoms in _iter_images(images):
-        g = _ase_frame(atoms, bin_edges, elements, volume, pairs, ase_quirk)
+    for image in _iter_images(atoms):
+        g = _ase_frame(image, bin_edges, elements, volume, pairs, ase_quirk,
+                       distance_matrix)
         total = g if total is None else total + g
         nimages += 1
     if nimages == 0:
-        raise ValueError("images: no images given")
+        raise ValueError("atoms: no images given")
     r = 0.5 * (bin_edges[:-1] + bin_edges[1:])
-    return total / nimages, r
+    g = total / nimages
+    return g if no_dists else (g, r)
 
 
 # --------------------------------------------------------------------------
@@ -1295,30 +1337,58 @@ def add_rdf_parser(subparsers):
     p = subparsers.add_parser(
         "rdf", help="radial distribution function of a trajectory through the MLG",
         description="g(r) of any trajectory MDAnalysis reads, counted through the "
-                    "MLG; the numbers of MDAnalysis InterRDF.")
-    p.add_argument("trajectory", metavar="TRAJECTORY",
-                   help="trajectory (or a single file with topology and coordinates)")
-    p.add_argument("topology", metavar="TOPOLOGY", nargs="?", default=None,
-                   help="topology file, when TRAJECTORY has none")
+                    "MLG; the numbers of MDAnalysis InterRDF.  Files in MDAnalysis's "
+                    "order: ase-mlg rdf TOPOLOGY TRAJECTORY (as Universe(topology, "
+                    "trajectory)), or one file holding both.")
+    p.add_argument("files", metavar="FILE", nargs="+",
+                   help="TOPOLOGY TRAJECTORY, or a single file with topology and "
+                        "coordinates (PDB, GRO, ...)")
     p.add_argument("--select", default="all",
                    help="MDAnalysis selection of the first group (default: all)")
     p.add_argument("--select2", default=None,
                    help="selection of the second group (default: same as --select)")
+    p.add_argument("--updating", action="store_true",
+                   help="re-evaluate the selections every frame (e.g. 'around 3.5 "
+                        "protein'), as select_atoms(..., updating=True)")
     p.add_argument("--rmin", type=float, default=0.0, help="smallest distance, Å (default 0)")
     p.add_argument("--rmax", type=float, default=15.0, help="largest distance, Å (default 15)")
     p.add_argument("--nbins", type=int, default=75, help="number of bins (default 75)")
-    p.add_argument("--norm", choices=("rdf", "density", "none"), default="rdf")
+    p.add_argument("--norm", choices=("rdf", "density", "none"), default="rdf",
+                   help="normalisation: rdf = g(r) (needs a box), density = "
+                        "count / shell volume (Å^-3), none = count per frame "
+                        "(default rdf)")
+    p.add_argument("--exclude-self", action="store_true",
+                   help="drop each atom's pair with itself (d = 0); the same as "
+                        "--exclusion-block 1 1 (needs the two groups equal)")
+    p.add_argument("--exclusion-block", type=int, nargs=2, metavar=("N1", "N2"),
+                   default=None,
+                   help="drop pairs in the same block of N1 atoms of the first "
+                        "group and N2 of the second (InterRDF's exclusion_block)")
+    p.add_argument("--exclude-same", choices=("residue", "segment", "chain"),
+                   default=None,
+                   help="drop pairs of atoms in the same residue/segment/chain")
     p.add_argument("--plot", metavar="OUT.png", default=None, help="write a plot of g(r)")
     p.add_argument("--output", metavar="TABLE.txt", default=None,
                    help="write the table r, g(r), count here (default: stdout)")
     p.add_argument("--backend", choices=("serial", "multiprocessing", "dask"),
-                   default="serial", help="MDAnalysis backend (progress bar: serial only)")
-    p.add_argument("--workers", type=int, default=1, help="workers for parallel backends")
+                   default="serial",
+                   help="where frames run: serial (default; a progress bar when "
+                        "stderr is a terminal), multiprocessing or dask processes "
+                        "on this machine")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes for multiprocessing/dask (default 1); "
+                        "with --scheduler, parts to split the frames into "
+                        "(default: the cluster's workers)")
+    p.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                   help="run on a dask.distributed cluster, e.g. tcp://host:8786 "
+                        "(start one with 'dask scheduler' and 'dask worker ADDRESS'; "
+                        "workers must read the files at the same paths)")
     p.add_argument("--template", type=int, default=None, metavar="W",
                    help="count through the W^3 template (odd W) instead of exactly")
-    p.add_argument("--start", type=int, default=None)
-    p.add_argument("--stop", type=int, default=None)
-    p.add_argument("--step", type=int, default=None)
+    p.add_argument("--start", type=int, default=None, help="first frame (default 0)")
+    p.add_argument("--stop", type=int, default=None,
+                   help="stop before this frame (default: the end)")
+    p.add_argument("--step", type=int, default=None, help="frame step (default 1)")
     p.set_defaults(func=run_rdf_command)
     return p
 
@@ -1330,33 +1400,48 @@ def _one_line(exc, limit=300):
     return msg if len(msg) <= limit else msg[:limit - 3] + "..."
 
 
-def _open_universe(trajectory, topology):
+def _open_universe(files):
     import warnings
     import MDAnalysis as mda
-    for name, path in (("TRAJECTORY", trajectory), ("TOPOLOGY", topology)):
-        if path is not None and not os.path.isfile(path):
+    if len(files) > 2:
+        raise ValueError(f"FILE: expected TOPOLOGY TRAJECTORY or one file, got "
+                         f"{len(files)} files")
+    names = ("TOPOLOGY", "TRAJECTORY") if len(files) == 2 else ("FILE",)
+    for name, path in zip(names, files):
+        if not os.path.isfile(path):
             raise OSError(f"{name}: no such file {path!r}")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # guessed attributes, missing masses ...
-            if topology is None:
-                return mda.Universe(trajectory)
-            return mda.Universe(topology, trajectory)
+            return mda.Universe(*files)
     except Exception as exc:  # MDAnalysis raises many kinds for a bad file
-        names = "TRAJECTORY" if topology is None else "TRAJECTORY/TOPOLOGY"
-        raise OSError(f"{names}: MDAnalysis cannot read {trajectory!r}"
-                      f"{'' if topology is None else ' with ' + repr(topology)}: "
-                      f"{_one_line(exc)}") from None
+        what = "FILE" if len(files) == 1 else "TOPOLOGY/TRAJECTORY"
+        names = " with ".join(repr(os.path.basename(f)) for f in files)
+        raise OSError(f"{what}: MDAnalysis cannot read {names}: "
+                      f"{_one_line(exc, 200)}") from None
 
 
-def _select(u, selection, option):
+def _select(u, selection, option, updating=False):
     try:
-        g = u.select_atoms(selection)
+        g = u.select_atoms(selection, updating=updating)
     except Exception as exc:
         raise ValueError(f"{option}: invalid selection {selection!r}: {_one_line(exc)}") from None
-    if len(g) == 0:
+    if len(g) == 0 and not updating:
         raise ValueError(f"{option}: selection {selection!r} matched no atoms")
     return g
+
+
+def _connect(address):
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ValueError("--scheduler: dask.distributed is not installed "
+                         "(pip install 'dask[distributed]')") from None
+    try:
+        return Client(address, timeout=10)
+    except Exception as exc:  # OSError, TimeoutError, ValueError for bad addresses
+        raise ValueError(f"--scheduler: cannot connect to {address!r}: "
+                         f"{_one_line(exc)}") from None
 
 
 def run_rdf_command(args, out=None):
@@ -1373,41 +1458,70 @@ def run_rdf_command(args, out=None):
     if not (np.isfinite(args.rmin) and 0.0 <= args.rmin < args.rmax):
         raise ValueError(f"--rmin: need 0 <= rmin < rmax, got {args.rmin}")
     _check_template(args.template, "--template")
-    if args.workers < 1:
+    if args.workers is not None and args.workers < 1:
         raise ValueError(f"--workers: must be >= 1, got {args.workers}")
+    if args.scheduler is not None and args.backend != "serial":
+        raise ValueError(f"--scheduler: runs on the cluster; drop --backend {args.backend}")
+    block = args.exclusion_block
+    if block is not None and min(block) < 1:
+        raise ValueError(f"--exclusion-block: need two integers >= 1, got {block}")
+    if args.exclude_self:
+        if block is not None or args.exclude_same is not None:
+            raise ValueError("--exclude-self: use it alone, not with --exclusion-block "
+                             "or --exclude-same")
+        if args.select2 is not None and args.select2 != args.select:
+            raise ValueError("--exclude-self: needs the two groups equal (no --select2)")
+        block = (1, 1)
+    if block is not None and args.exclude_same is not None:
+        raise ValueError("--exclude-same: cannot be combined with --exclusion-block")
     for option, path in (("--output", args.output), ("--plot", args.plot)):
         # fail before the run, not after it
         if path is not None and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
             raise OSError(f"{option}: directory of {path!r} does not exist")
-    u = _open_universe(args.trajectory, args.topology)
-    g1 = _select(u, args.select, "--select")
-    g2 = g1 if args.select2 is None else _select(u, args.select2, "--select2")
+    u = _open_universe(args.files)
+    g1 = _select(u, args.select, "--select", args.updating)
+    g2 = (g1 if args.select2 is None
+          else _select(u, args.select2, "--select2", args.updating))
     r = RDF(g1, g2, nbins=args.nbins, range=(args.rmin, args.rmax), norm=args.norm,
-            template=args.template)
+            template=args.template, exclusion_block=block,
+            exclude_same=args.exclude_same)
     if args.backend == "dask":
         try:
             import dask  # noqa: F401
         except ImportError:
             raise ValueError("--backend: dask is not installed") from None
-    # frame 0 is checked before the progress bar starts, so that the common
-    # bad file gives one clean error line
+    # frame 0 is checked before any work, so that the common bad file gives
+    # one clean error line (non-finite coordinates, no box with --norm rdf,
+    # rmax beyond the cell)
     bad = ~np.isfinite(u.atoms.positions).all(axis=1)
     if bad.any():
         raise ValueError(f"TRAJECTORY: frame 0 has non-finite coordinates for atom(s) "
                          f"{np.flatnonzero(bad)[:10].tolist()}")
+    if u.dimensions is None and args.norm == "rdf":
+        raise ValueError("--norm: the trajectory has no box, so g(r) (--norm rdf) is "
+                         "undefined; use --norm density or --norm none")
+    frames = dict(start=args.start, stop=args.stop, step=args.step)
     try:
         r.check_range()  # frame 0 now; later frames (NPT boxes) during the run
-        if args.backend == "serial":
-            r.run(start=args.start, stop=args.stop, step=args.step, verbose=True)
+        if args.scheduler is not None:
+            client = _connect(args.scheduler)
+            with client:
+                r.run(**frames, backend=DistributedBackend(client),
+                      n_parts=args.workers)
+        elif args.backend == "serial":
+            # a progress bar only for a person watching a terminal
+            r.run(**frames, verbose=bool(getattr(sys.stderr, "isatty", None)
+                                         and sys.stderr.isatty()))
         else:
-            r.run(start=args.start, stop=args.stop, step=args.step,
-                  backend=args.backend, n_workers=args.workers)
+            r.run(**frames, backend=args.backend, n_workers=args.workers or 1)
     except ValueError as exc:
         if str(exc).startswith("range: rmax"):
             raise ValueError(f"--rmax: {_one_line(exc)}") from None
+        if str(exc).startswith("norm:"):
+            raise ValueError(f"--norm: {_one_line(exc)[6:]}") from None
         raise
     table = np.column_stack([r.results.bins, r.results.rdf, r.results.count])
-    header = (f"ase-mlg rdf: {args.trajectory}, {r.n_frames} frames, "
+    header = (f"ase-mlg rdf: {' '.join(args.files)}, {r.n_frames} frames, "
               f"{len(g1)} x {len(g2)} atoms, norm={args.norm}\n"
               "r/Angstrom  g(r)  count")
     if args.output is None:

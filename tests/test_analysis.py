@@ -391,7 +391,7 @@ def test_rdf_bad_input(tmp_path):
         args.update(kw)
         with pytest.raises(ValueError, match=match):
             rdf(atoms, **args)
-    with pytest.raises(ValueError, match="images"):
+    with pytest.raises(ValueError, match="atoms"):
         rdf([], 5.0, 10)
     with pytest.raises(OSError, match="no such file"):
         rdf(str(tmp_path / "missing.traj"), 5.0, 10)
@@ -399,6 +399,37 @@ def test_rdf_bad_input(tmp_path):
     garbage.write_text("not a trajectory\n")
     with pytest.raises(OSError, match="cannot read"):
         rdf(str(garbage), 5.0, 10)
+
+
+@pytest.mark.parametrize("elements", [None, ("Ar", "Kr")])
+def test_rdf_takes_get_rdf_arguments_in_order(elements):
+    """rdf(atoms, rmax, nbins, distance_matrix, elements, no_dists, volume):
+    the same positional call as get_rdf, the same numbers."""
+    atoms = make_scene("mixture", 256)
+    for call in [(atoms, 6.0, 30, None, elements, False, None),
+                 (atoms, 6.0, 30, None, elements, True, None),
+                 (atoms, 6.0, 30, None, elements, False, 2.0 * atoms.get_volume()),
+                 (atoms, 6.0, 30, atoms.get_all_distances(mic=True), elements, False, None)]:
+        ref, got = get_rdf(*call), rdf(*call)
+        if call[5]:  # no_dists: g only
+            assert isinstance(got, np.ndarray) and got.shape == (30,)
+            np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+        else:
+            np.testing.assert_allclose(got[0], ref[0], rtol=0, atol=1e-12)
+            np.testing.assert_array_equal(got[1], ref[1])
+            assert ref[0].sum() > 0
+    # our options after get_rdf's
+    g_exact = rdf(atoms, 6.0, 30, None, elements, True, None, None)
+    g_templ = rdf(atoms, 6.0, 30, None, elements, True, None, 9)
+    np.testing.assert_allclose(g_templ, g_exact, rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="distance_matrix"):
+        rdf(atoms, 6.0, 30, np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="distance_matrix"):
+        rdf(atoms, 6.0, 30, np.zeros(5))
+    with pytest.raises(TypeError, match="no_dists"):
+        rdf(atoms, 6.0, 30, no_dists="yes")
+    with pytest.raises(ValueError, match="volume"):
+        rdf(atoms, 6.0, 30, volume="big")
 
 
 # --------------------------------------------------------------------------
@@ -425,13 +456,27 @@ def test_cli_rdf_table_plot_progress(scene_pdbs, tmp_path, capsys):
     np.testing.assert_array_equal(data[:, 2], ref.results.count)
     np.testing.assert_allclose(data[:, 1], ref.results.rdf, rtol=1e-9)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "100%" in capsys.readouterr().err  # MDAnalysis's tqdm bar
     assert r.n_frames == 3
+    # stderr is not a terminal here: no progress bar
+    assert "100%" not in capsys.readouterr().err
+
+
+def test_cli_rdf_progress_bar_only_on_a_terminal(scene_pdbs, monkeypatch):
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    for tty in (True, False):
+        err = Terminal() if tty else io.StringIO()
+        monkeypatch.setattr("sys.stderr", err)
+        run_rdf_command(parse([scene_pdbs["liquid"], "--rmax", "8"]), out=io.StringIO())
+        assert ("100%" in err.getvalue()) is tty  # MDAnalysis's tqdm bar
 
 
 def test_cli_rdf_topology_selections_parallel(water_tric):
     out = io.StringIO()
-    args = parse([datafiles.DCD_TRICLINIC, datafiles.PSF_TRICLINIC,
+    # MDAnalysis's order: Universe(topology, trajectory)
+    args = parse([datafiles.PSF_TRICLINIC, datafiles.DCD_TRICLINIC,
                   "--select", "name OH2", "--select2", "name H1 H2", "--rmax", "8",
                   "--nbins", "16", "--backend", "multiprocessing", "--workers", "2"])
     run_rdf_command(args, out=out)
@@ -443,8 +488,20 @@ def test_cli_rdf_topology_selections_parallel(water_tric):
 
 
 @pytest.mark.parametrize("argv, exc, name", [
-    (["{missing}"], OSError, "TRAJECTORY"),
-    (["{garbage}"], OSError, "TRAJECTORY"),
+    (["{missing}"], OSError, "FILE"),
+    (["{garbage}"], OSError, "FILE"),
+    (["{tpr}", "{missing}"], OSError, "TRAJECTORY"),
+    (["{missing}", "{xtc}"], OSError, "TOPOLOGY"),
+    (["{liquid}", "{liquid}", "{liquid}"], ValueError, "FILE"),
+    (["{dcd_nobox}", "{psf_nobox}"], OSError, "TOPOLOGY/TRAJECTORY"),
+    (["{psf_nobox}", "{dcd_nobox}", "--select", "name CA"], ValueError, "--norm"),
+    (["{liquid}", "--exclude-self", "--select2", "name Ar and index 1:10"], ValueError,
+     "--exclude-self"),
+    (["{liquid}", "--exclusion-block", "0", "1"], ValueError, "--exclusion-block"),
+    (["{liquid}", "--exclusion-block", "1", "1", "--exclude-same", "residue"],
+     ValueError, "--exclude-same"),
+    (["{liquid}", "--scheduler", "tcp://127.0.0.1:9", "--backend", "dask"], ValueError,
+     "--scheduler"),
     (["{liquid}", "--select", "name XX"], ValueError, "--select"),
     (["{liquid}", "--select2", "name and"], ValueError, "--select2"),
     (["{liquid}", "--rmax", "0"], ValueError, "--rmax"),
@@ -454,13 +511,14 @@ def test_cli_rdf_topology_selections_parallel(water_tric):
     (["{liquid}", "--rmin", "20"], ValueError, "--rmin"),
     (["{liquid}", "--workers", "0", "--backend", "dask"], ValueError, "--workers"),
     (["{liquid}", "--output", "{tmp}/no/such/dir/g.txt"], OSError, "--output"),
-    (["{xtc}", "{tpr}", "--select", "name OW", "--rmax", "40"], ValueError, "--rmax"),
+    (["{tpr}", "{xtc}", "--select", "name OW", "--rmax", "40"], ValueError, "--rmax"),
 ])
 def test_cli_rdf_errors_name_the_argument(scene_pdbs, tmp_path, argv, exc, name):
     garbage = tmp_path / "garbage.dcd"
     garbage.write_bytes(b"\x00\x01 not a dcd file" * 10)
     paths = dict(missing=str(tmp_path / "missing.dcd"), garbage=str(garbage),
                  liquid=scene_pdbs["liquid"], xtc=datafiles.XTC, tpr=datafiles.TPR,
+                 psf_nobox=datafiles.PSF, dcd_nobox=datafiles.DCD,
                  tmp=str(tmp_path))
     args = parse([a.format(**paths) for a in argv])
     with pytest.raises(exc) as info:
@@ -468,3 +526,46 @@ def test_cli_rdf_errors_name_the_argument(scene_pdbs, tmp_path, argv, exc, name)
     msg = str(info.value)
     assert msg.startswith(name) and "\n" not in msg and len(msg) < 400
     assert not os.path.exists(tmp_path / "g.txt")
+
+
+def test_cli_rdf_exclusions_and_updating(water_tric):
+    """--exclude-self, --exclusion-block, --exclude-same and --updating give
+    InterRDF's counts with the matching arguments."""
+    ow = water_tric.select_atoms("name OH2")
+    every = water_tric.atoms
+    cases = [
+        (["--select", "name OH2", "--exclude-self"], (ow, ow, dict(exclusion_block=(1, 1)))),
+        (["--exclusion-block", "3", "3"], (every, every, dict(exclusion_block=(3, 3)))),
+        (["--exclude-same", "residue"], (every, every, dict(exclude_same="residue"))),
+    ]
+    for argv, (g1, g2, kw) in cases:
+        out = io.StringIO()
+        run_rdf_command(parse([datafiles.PSF_TRICLINIC, datafiles.DCD_TRICLINIC,
+                               "--rmax", "8", "--nbins", "12", "--stop", "4"] + argv),
+                        out=out)
+        ref = InterRDF(g1, g2, nbins=12, range=(0.0, 8.0), **kw).run(stop=4)
+        data = np.loadtxt(io.StringIO(out.getvalue()))
+        np.testing.assert_array_equal(data[:, 2], ref.results.count)
+        np.testing.assert_allclose(data[:, 1], ref.results.rdf, rtol=1e-9)
+    # without the exclusion the d = 0 self pairs are there
+    plain = InterRDF(ow, ow, nbins=12, range=(0.0, 8.0)).run(stop=4)
+    assert plain.results.count[0] > 0
+    out = io.StringIO()
+    run_rdf_command(parse([datafiles.PSF_TRICLINIC, datafiles.DCD_TRICLINIC,
+                           "--select", "name OH2 and prop z < 2", "--updating",
+                           "--select2", "name OH2", "--rmax", "8", "--nbins", "12"]),
+                    out=out)
+    upd = water_tric.select_atoms("name OH2 and prop z < 2", updating=True)
+    ref = InterRDF(upd, ow, nbins=12, range=(0.0, 8.0)).run()
+    np.testing.assert_array_equal(np.loadtxt(io.StringIO(out.getvalue()))[:, 2],
+                                  ref.results.count)
+
+
+def test_cli_rdf_help_for_every_option():
+    parser = argparse.ArgumentParser(prog="ase-mlg")
+    sub = parser.add_subparsers(dest="command")
+    p = add_rdf_parser(sub)
+    for action in p._actions:
+        assert action.help, action.dest
+    text = p.format_help()
+    assert "TOPOLOGY TRAJECTORY" in text and "--scheduler" in text
