@@ -1431,14 +1431,14 @@ def _select(u, selection, option, updating=False):
     return g
 
 
-def _connect(address):
+def _connect(address, timeout=10):
     try:
         from distributed import Client
     except ImportError:
         raise ValueError("--scheduler: dask.distributed is not installed "
                          "(pip install 'dask[distributed]')") from None
     try:
-        return Client(address, timeout=10)
+        return Client(address, timeout=timeout)
     except Exception as exc:  # OSError, TimeoutError, ValueError for bad addresses
         raise ValueError(f"--scheduler: cannot connect to {address!r}: "
                          f"{_one_line(exc)}") from None
