@@ -15,7 +15,7 @@ arrays, so the grid can be used from any code.
 
 import numpy as np
 
-__all__ = ["Box", "as_positions", "grid_shape"]
+__all__ = ["Box", "as_positions", "cell_change", "grid_shape"]
 
 
 def as_positions(positions, name="positions"):
@@ -89,6 +89,8 @@ class Box:
         self.cell = np.ascontiguousarray(cell)
         self.pbc = pbc
         self.full = _complete_cell(self.cell, pbc)
+        # which cell vectors were given (the others are completed)
+        self.present = _present(self.cell)
         self.volume = abs(np.linalg.det(self.full))
         self.inverse = np.ascontiguousarray(np.linalg.inv(self.full))
         # height of the cell along each axis: volume / area of the opposite face
@@ -105,6 +107,66 @@ class Box:
 
     def __repr__(self):
         return f"Box(cell={self.cell.tolist()}, pbc={self.pbc.tolist()})"
+
+
+def _present(cell):
+    """Per axis, whether the cell vector is given (not zero), with the same
+    threshold as :func:`_complete_cell`."""
+    lengths = np.linalg.norm(cell, axis=1)
+    return lengths > 1e-12 * max(lengths.max(), 1.0)
+
+
+# A cell whose volume is below this fraction of the product of its vector
+# lengths is treated as degenerate by :func:`cell_change` (``Box`` itself
+# refuses 1e-9): the grid coordinates of such a flat cell say little about
+# the atoms' neighbourhoods, so the grid is rebuilt for its shape.
+FLAT_CELL = 1e-6
+
+
+def cell_change(old, new):
+    """How a grid built on ``old`` can follow a change of cell to ``new``.
+
+    Grid coordinates are ``g_a = f_a h_a``.  When the cell changes affinely
+    and the atoms move with it, the fractional coordinates ``f`` stay and
+    every ``g_a`` is multiplied by ``h'_a / h_a > 0``, also the periodic
+    image offsets ``m h_a`` stored by the grid (they become ``m h'_a``).
+    Multiplying by a positive constant is monotone, so the grid's order
+    survives exactly and only the atoms' own moves need swaps.
+
+    Parameters
+    ----------
+    old, new : Box
+
+    Returns
+    -------
+    reason : str or None
+        None when the grid can keep its order (rescale by ``scale``), else
+        why it must be rebuilt: ``"pbc changed"``; ``"cell rank changed"``
+        (a cell vector appeared or vanished, so the completion of the cell,
+        and with it the meaning of a grid coordinate, changed);
+        ``"cell completion changed"`` (a completed vector turned: possible
+        when two vectors are missing); ``"cell degenerate"`` (volume nearly
+        zero, or the cell's handedness flipped, i.e. it passed through zero
+        volume).
+    scale : float64 array (3,) or None
+        ``new.heights / old.heights`` when ``reason`` is None.
+    """
+    if not np.array_equal(old.pbc, new.pbc):
+        return "pbc changed", None
+    if not np.array_equal(old.present, new.present):
+        return "cell rank changed", None
+    for a in range(3):
+        if not new.present[a] and np.dot(old.full[a], new.full[a]) < 0.5:
+            return "cell completion changed", None
+    det_old = np.linalg.det(old.full)
+    det_new = np.linalg.det(new.full)
+    norms = np.prod(np.linalg.norm(new.full, axis=1))
+    if det_old * det_new <= 0.0 or not abs(det_new) > FLAT_CELL * norms:
+        return "cell degenerate", None
+    scale = new.heights / old.heights
+    if not (np.isfinite(scale).all() and (scale > 0).all()):
+        return "cell degenerate", None
+    return None, scale
 
 
 def _complete_cell(cell, pbc):

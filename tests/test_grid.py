@@ -312,30 +312,69 @@ def test_bad_arguments():
         template_pairs(grid, 3, -1.0)
 
 
-def test_parallel_sweeps_equal_serial():
-    """The threaded phases give exactly the serial answer (disjoint pairs)."""
-    from ase_mlg.grid import _phase_parallel, _phase_serial, _seam_parallel, _seam_serial
-    atoms = random_points(40000, 0.8, seed=11)
-    grid = MLG.from_atoms(atoms)
+def reference_sweeps(sites, coords, shape, periods, cap):
+    """Boris's odd-even sweeps phase by phase in numpy (the definition the
+    line-wise kernels with skipped in-order lines must reproduce)."""
+    S = sites.reshape(shape).copy()
+    C = coords.reshape(tuple(shape) + (3,)).copy()
+    nsweep = nswap = 0
+    while True:
+        swaps = 0
+        for axis in range(3):
+            n = shape[axis]
+            if n < 2:
+                continue
+            Sa, Ca = np.moveaxis(S, axis, 0), np.moveaxis(C, axis, 0)  # views
+            for parity in (0, 1):
+                lo = np.arange(parity, n - 1, 2)
+                bad = Ca[lo, ..., axis] > Ca[lo + 1, ..., axis]
+                idx = np.nonzero(bad)
+                i0, rest = lo[idx[0]], idx[1:]
+                s0, s1 = Sa[(i0,) + rest].copy(), Sa[(i0 + 1,) + rest].copy()
+                c0, c1 = Ca[(i0,) + rest].copy(), Ca[(i0 + 1,) + rest].copy()
+                Sa[(i0,) + rest], Sa[(i0 + 1,) + rest] = s1, s0
+                Ca[(i0,) + rest], Ca[(i0 + 1,) + rest] = c1, c0
+                swaps += len(i0)
+            if periods[axis] > 0:
+                bad = Ca[-1, ..., axis] > Ca[0, ..., axis] + periods[axis]
+                f, l = Ca[0][bad].copy(), Ca[-1][bad].copy()
+                f[:, axis] += periods[axis]
+                l[:, axis] -= periods[axis]
+                Ca[0][bad], Ca[-1][bad] = l, f
+                s0 = Sa[0][bad].copy()
+                Sa[0][bad], Sa[-1][bad] = Sa[-1][bad], s0
+                swaps += int(bad.sum())
+        if swaps == 0:
+            return S.ravel(), C.reshape(-1, 3), nsweep, nswap
+        nsweep += 1
+        nswap += swaps
+        if nsweep >= cap:
+            return S.ravel(), C.reshape(-1, 3), nsweep, nswap
+
+
+@pytest.mark.parametrize("pbc", [True, (True, False, True), False])
+def test_sweeps_equal_boris_phase_order_serial_and_threaded(pbc, monkeypatch):
+    """The line-wise passes that skip lines in order give bit for bit the
+    phase-by-phase sweeps of Boris 1985 sec. III, on the serial path and on
+    the threaded one."""
+    from ase_mlg import grid as G
+    atoms = random_points(6000, 0.8, seed=11)
+    grid = MLG(atoms.positions, atoms.cell.array, pbc)
     rng = np.random.default_rng(0)
-    grid.update(atoms.positions + rng.normal(scale=0.5, size=(40000, 3)))
-    # scramble again without sweeping, then run one phase each way
-    g = grid.box.fractional(atoms.positions + rng.normal(size=(40000, 3))) * grid.box.heights
-    sites = grid._sites.copy()
-    coords = g[np.maximum(sites, 0)]
-    shape = grid.shape
-    strides = [shape[1] * shape[2], shape[2], 1]
-    for axis in range(3):
-        a = (sites.copy(), coords.copy())
-        b = (sites.copy(), coords.copy())
-        for parity in (0, 1):
-            na = _phase_serial(*a, shape[axis], strides[axis], axis, parity)
-            nb = _phase_parallel(*b, shape[axis], strides[axis], axis, parity)
-            assert na == nb and na > 0
-        na = _seam_serial(*a, shape[axis], strides[axis], axis, grid.box.heights[axis])
-        nb = _seam_parallel(*b, shape[axis], strides[axis], axis, grid.box.heights[axis])
-        assert na == nb
-        assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    x = atoms.positions + rng.normal(scale=0.4, size=(6000, 3))
+    g = grid.box.fractional(x) * grid.box.heights
+    occ = grid._sites >= 0
+    coords = grid._coords.copy()
+    coords[occ] = g[grid._sites[occ]]  # scrambled, some sites far off
+    shape = np.array(grid.shape)
+    ref = reference_sweeps(grid._sites, coords, shape, grid._periods, 64)
+    assert ref[2] > 2 and ref[3] > 100
+    for threshold in (10 ** 9, 1):  # serial, then threaded kernels
+        monkeypatch.setattr(G, "PARALLEL_SITES", threshold)
+        sites, c = grid._sites.copy(), coords.copy()
+        nsweep, nswap, ok = G._sweeps(sites, c, shape, grid._periods, 64)
+        assert ok and (nsweep, nswap) == ref[2:]
+        assert np.array_equal(sites, ref[0]) and np.array_equal(c, ref[1])
 
 
 def test_periodic_run_stays_flat():
