@@ -3,8 +3,10 @@
 ``ase-mlg demo`` runs the package end to end on an embedded LJ argon liquid;
 ``ase-mlg rdf`` computes radial distribution functions of trajectories
 (:mod:`ase_mlg.analysis`); ``ase-mlg tradeoff`` measures the template's
-speed/accuracy trade (:mod:`ase_mlg.tradeoff`).
-Errors in user input print one line and exit with status 2.
+speed/accuracy trade (:mod:`ase_mlg.tradeoff`); bare ``ase-mlg`` lists the
+commands, ``ase-mlg --version`` prints the version.
+Errors in user input print one line and exit with status 2.  Progress bars
+are drawn only when their stream is a terminal.
 """
 
 import argparse
@@ -14,6 +16,14 @@ import time
 import numpy as np
 
 __all__ = ["main", "demo"]
+
+
+def _is_tty(stream):
+    """True when ``stream`` is a terminal (progress bars only there)."""
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
 
 
 def _exact_pairs(atoms, rc):
@@ -51,6 +61,8 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
     spacing = (atoms.get_volume() / len(atoms)) ** (1 / 3)
     say(f"ase-mlg demo: LJ argon liquid, {len(atoms)} atoms, rho* = 0.8, "
         f"box {atoms.cell[0, 0]:.2f} Å, rc = 2.5 sigma = {rc:.3f} Å")
+    say("building the grid (loading its compiled kernels; the first run "
+        "compiles them, about 15 s, and caches them on disk)...")
     t0 = time.perf_counter()
     grid = MLG.from_atoms(atoms)
     say(f"grid {grid.shape} ({grid.nholes} holes), built in "
@@ -58,8 +70,9 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
     walk = PersistentWalk(atoms.positions, 0.02 * spacing, seed=seed)
     sweeps = []
     t0 = time.perf_counter()
+    say(f"moving the atoms {steps} steps, repairing the grid by swap sweeps...")
     for _ in tqdm(range(steps), desc="moving atoms", unit="step", file=out,
-                  mininterval=0.5):
+                  mininterval=0.5, disable=not _is_tty(out)):
         sweeps.append(grid.update(walk.step())["sweeps"])
     dt = time.perf_counter() - t0
     sweeps = np.array(sweeps)
@@ -75,13 +88,15 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
     for w in (3, 5, 7, 9):
         found = len(template_pairs(grid, w, rc)[0])
         say(f"  W = {w}: {found / true:.4f}")
-    md_demo(len(atoms), md_steps, seed, say)
+    md_demo(len(atoms), md_steps, seed, say, progress=_is_tty(out))
     return grid
 
 
-def md_demo(natoms, steps, seed, say):
+def md_demo(natoms, steps, seed, say, progress=None):
     """NVE MD of the liquid with MLGCalculator; energy conservation, and
-    agreement and speed against ase.calculators.lj.LennardJones."""
+    agreement and speed against ase.calculators.lj.LennardJones.
+    ``progress``: draw progress bars (on stderr); default: when stderr is a
+    terminal."""
     from ase import units
     from ase.calculators.lj import LennardJones as AseLJ
     from ase.md.velocitydistribution import Stationary, thermalize_momenta
@@ -94,6 +109,8 @@ def md_demo(natoms, steps, seed, say):
 
     if steps <= 0:
         return
+    if progress is None:
+        progress = _is_tty(sys.stderr)
     params = dict(sigma=SIGMA_AR, epsilon=0.0104, rc=2.5 * SIGMA_AR)
     # a fresh start: the random walk above lets atoms overlap, which no MD
     # run would start from
@@ -102,13 +119,16 @@ def md_demo(natoms, steps, seed, say):
     Stationary(atoms)
     atoms.calc = MLGCalculator(LennardJones(**params, smooth=True), skin=1.0)
     dyn = VelocityVerlet(atoms, 5 * units.fs)
+    say(f"NVE MD with MLGCalculator, {steps} steps: loading the calculator's "
+        "compiled kernels (compiled on a first run, about 10 s)...")
     dyn.run(1)  # loads the compiled kernels
     frames = []
     dyn.attach(lambda: frames.append(atoms.copy()), interval=max(1, steps // 10))
     e0 = atoms.get_total_energy()
     energies = []
     t0 = time.perf_counter()
-    for _ in tqdm(range(steps), desc="NVE MD (5 fs)", unit="step", mininterval=0.5):
+    for _ in tqdm(range(steps), desc="NVE MD (5 fs)", unit="step", mininterval=0.5,
+                  disable=not progress):
         dyn.run(1)
         energies.append(atoms.get_total_energy())
     t_step = (time.perf_counter() - t0) / steps
@@ -119,6 +139,7 @@ def md_demo(natoms, steps, seed, say):
         f"{drift[-1]:+.2e} eV/atom, max |dE| {np.abs(drift).max():.2e} eV/atom; "
         f"T = {atoms.get_temperature():.1f} K; grid built {st['grid_builds']}x, "
         f"pair list built {st['list_builds']}x, {st['sweeps']} sweeps")
+    say("the same atoms with ase.calculators.lj.LennardJones...")
     ref = atoms.copy()
     ref.calc = AseLJ(**params, smooth=True)
     t0 = time.perf_counter()
@@ -138,13 +159,14 @@ def md_demo(natoms, steps, seed, say):
         f"max force diff {np.abs(f - f_ref).max():.1e} eV/Å; one force call "
         f"{1e3 * t_mlg:.1f} ms (list built from scratch) vs {1e3 * t_ase:.0f} ms: "
         f"{t_ase / t_mlg:.0f}x faster")
-    validate_trajectory(frames, say)
+    validate_trajectory(frames, say, progress=progress)
 
 
-def validate_trajectory(frames, say):
+def validate_trajectory(frames, say, progress=False):
     """Write the MD frames, then check them two ways: the RDF through the MLG
     against MDAnalysis InterRDF (bin by bin), and the pairs of
-    ase_mlg.NeighborList against ase.neighborlist.NeighborList."""
+    ase_mlg.NeighborList against ase.neighborlist.NeighborList.
+    ``progress``: MDAnalysis's progress bars for the two RDF runs."""
     import os
     import tempfile
     import warnings
@@ -164,16 +186,20 @@ def validate_trajectory(frames, say):
         rmax = 0.45 * min(frames[0].cell.lengths())
         # exclusion_block=(1, 1): an atom is not its own neighbour
         kw = dict(nbins=100, range=(0.0, rmax), exclusion_block=(1, 1))
+        say(f"checking the trajectory: RDF of {len(frames)} frames through the "
+            "MLG, then MDAnalysis InterRDF...")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # PDB frames carry no dt
-            ours = RDF(u.atoms, u.atoms, **kw).run()
-            ref = InterRDF(u.atoms, u.atoms, **kw).run()
+            ours = RDF(u.atoms, u.atoms, **kw).run(verbose=bool(progress))
+            ref = InterRDF(u.atoms, u.atoms, **kw).run(verbose=bool(progress))
         same_rdf = np.array_equal(ours.results.count, ref.results.count)
         say(f"RDF of {len(frames)} frames ({path.rsplit(os.sep, 1)[-1]}, "
             f"{len(u.atoms)} atoms, rmax {rmax:.2f} Å): counts "
             f"{'identical to' if same_rdf else 'DIFFERENT from'} MDAnalysis "
             f"InterRDF in all 100 bins; first peak g = {ours.results.rdf.max():.2f} "
             f"at {ours.results.bins[np.argmax(ours.results.rdf)]:.2f} Å")
+    say("checking the neighbour list of the last frame against "
+        "ase.neighborlist.NeighborList...")
     atoms = frames[-1]
     cut = [4.0] * len(atoms)
     nl, ref_nl = NeighborList(cut, self_interaction=False, bothways=True), \
@@ -216,21 +242,50 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def main(argv=None):
+def _parser():
+    from . import __version__
     parser = _Parser(
-        prog="ase-mlg", description="Monotonic Logical Grid tools for ASE: demo, rdf, tradeoff")
-    sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("demo", help="run the package end to end on an embedded argon liquid")
-    p.add_argument("--natoms", type=_positive_int, default=4000)
-    p.add_argument("--steps", type=_positive_int, default=500)
-    p.add_argument("--md-steps", type=_int_at_least(0), default=200)
-    p.add_argument("--seed", type=int, default=0)
+        prog="ase-mlg",
+        description="Boris's Monotonic Logical Grid for molecular dynamics in "
+                    "ASE. Run 'ase-mlg COMMAND -h' for a command's options.")
+    parser.add_argument("--version", action="version",
+                        version=f"ase-mlg {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND",
+                                title="commands")
+    p = sub.add_parser(
+        "demo", help="run the package end to end on an embedded argon liquid",
+        description="Build the MLG of an LJ argon liquid, move the atoms and "
+                    "repair the grid (sweeps, template quality), run NVE MD "
+                    "with MLGCalculator against ASE's LennardJones, and check "
+                    "the trajectory against MDAnalysis and ase.neighborlist.")
+    p.add_argument("--natoms", type=_positive_int, default=4000,
+                   help="approximate number of atoms (default %(default)s)")
+    p.add_argument("--steps", type=_positive_int, default=500,
+                   help="steps of liquid-like random motion to repair the grid "
+                        "through (default %(default)s)")
+    p.add_argument("--md-steps", type=_int_at_least(0), default=200,
+                   help="NVE MD steps of 5 fs with MLGCalculator; 0 skips the "
+                        "MD and its checks (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the liquid, the motion and the "
+                        "momenta (default %(default)s)")
     # the subcommands of the analysis and trade-off modules
-    from .analysis import add_rdf_parser, run_rdf_command
-    from .tradeoff import add_tradeoff_parser, run_tradeoff_command
+    from .analysis import add_rdf_parser
+    from .tradeoff import add_tradeoff_parser
     add_rdf_parser(sub)
     add_tradeoff_parser(sub)
+    return parser
+
+
+def main(argv=None):
+    """The ``ase-mlg`` command; returns the exit status."""
+    parser = _parser()
     args = parser.parse_args(argv)
+    if args.command is None:  # bare `ase-mlg`: list the commands
+        parser.print_help()
+        return 0
+    from .analysis import run_rdf_command
+    from .tradeoff import run_tradeoff_command
     import warnings
     try:
         # library warnings (e.g. MDAnalysis readers without time steps) are

@@ -28,6 +28,7 @@ block query (:mod:`ase_mlg.query`), keyed by ``(i, j, cell shift)``.
 Units: Å, eV, eV/Å, seconds (times), ps (drift), fs (MD time step), K.
 """
 
+import inspect
 import json
 import math
 import time
@@ -870,43 +871,63 @@ def add_tradeoff_parser(subparsers):
     so every bad value becomes a one-line ``ValueError`` naming the
     argument.
     """
+    from .calculator import MLGCalculator
+    skin = inspect.signature(MLGCalculator.__init__).parameters["skin"].default
     p = subparsers.add_parser(
         "tradeoff",
         help="measure template width W against exact mode: missed pairs, "
              "energy/force errors, time, NVE drift",
         description="Measure Boris's template (W = 3..11) against exact mode on "
                     "a structure file (any format ase.io.read reads) or a "
-                    "built-in scene. Template mode sees one image per pair.")
+                    "built-in scene; with no arguments, the LJ argon liquid "
+                    "(rho* 0.8) at rc = 2.5 sigma. Template mode sees one image "
+                    "per pair.")
     p.add_argument("structure", nargs="?", metavar="STRUCTURE_FILE",
-                   help="structure file readable by ase.io.read (last frame)")
-    p.add_argument("--scene", help="built-in scene: liquid, copper, gas, "
-                   "nanoparticle, sheared, slab, small, mixture")
+                   help="structure file readable by ase.io.read (its last "
+                        "frame); instead of --scene")
+    p.add_argument("--scene", help="built-in scene: liquid (the default when "
+                   "no STRUCTURE_FILE is given), copper, gas, nanoparticle, "
+                   "sheared, slab, small, mixture")
     p.add_argument("--natoms", default="4000",
-                   help="approximate size of a built-in scene (default 4000)")
-    p.add_argument("--cutoff", metavar="RC", help="cutoff radius, Å (required)")
-    p.add_argument("--potential", default="lj", help="lj (default) or morse")
-    p.add_argument("--sigma", default="3.405", help="LJ sigma, Å (default argon 3.405)")
+                   help="approximate size of a built-in scene (default %(default)s)")
+    p.add_argument("--cutoff", metavar="RC",
+                   help="cutoff radius, Å (default: 2.5 sigma for LJ, "
+                        "2.7 r0 for Morse, ASE's Morse default)")
+    p.add_argument("--potential", default="lj",
+                   help="lj (default) or morse")
+    p.add_argument("--sigma", default="3.405",
+                   help="LJ sigma, Å (default %(default)s, argon)")
     p.add_argument("--epsilon", default=None,
                    help="well depth, eV (default: LJ 0.0104, argon; Morse 0.35)")
     p.add_argument("--smooth", action="store_true",
                    help="LJ with ASE's smooth cutoff function (default: shifted)")
-    p.add_argument("--r0", default="2.55", help="Morse r0, Å (default 2.55)")
-    p.add_argument("--rho0", default="6.0", help="Morse rho0 (default 6)")
+    p.add_argument("--r0", default="2.55",
+                   help="Morse r0, Å (default %(default)s)")
+    p.add_argument("--rho0", default="6.0",
+                   help="Morse rho0 (default %(default)s)")
     p.add_argument("--widths", default="3,5,7,9,11",
-                   help="comma-separated odd template widths")
+                   help="comma-separated odd template widths (default %(default)s)")
     p.add_argument("--md", default="0", metavar="STEPS",
-                   help="NVE VelocityVerlet steps per mode (default 0)")
-    p.add_argument("--timestep", default="2.0", help="MD time step, fs (default 2)")
+                   help="NVE VelocityVerlet steps per mode (default %(default)s: "
+                        "no MD)")
+    p.add_argument("--timestep", default="2.0",
+                   help="MD time step, fs (default %(default)s)")
     p.add_argument("--temperature", default="100",
-                   help="initial MD temperature, K (default 100)")
-    p.add_argument("--skin", default="0.3", help="MD Verlet skin, Å (default 0.3)")
-    p.add_argument("--repeats", default="5", help="timed repeats (median; default 5)")
-    p.add_argument("--seed", default="0", help="momenta seed (default 0)")
+                   help="initial MD temperature, K (default %(default)s)")
+    p.add_argument("--skin", default=str(skin),
+                   help="MD Verlet skin, Å (default %(default)s, the same as "
+                        "MLGCalculator's)")
+    p.add_argument("--repeats", default="5",
+                   help="timed repeats, the median is reported (default %(default)s)")
+    p.add_argument("--seed", default="0",
+                   help="seed of the MD momenta (default %(default)s)")
     p.add_argument("--clock", default="wall",
                    help="wall (default) or cpu: CPU time of the process, robust "
                         "on a loaded machine with NUMBA_NUM_THREADS=1")
-    p.add_argument("--json", action="store_true", help="print JSON instead of the table")
-    p.add_argument("--plot", metavar="DIR", help="write tradeoff.png into DIR")
+    p.add_argument("--json", action="store_true",
+                   help="print JSON instead of the table")
+    p.add_argument("--plot", metavar="DIR",
+                   help="write tradeoff.png into DIR (created if missing)")
     return p
 
 
@@ -972,8 +993,14 @@ def run_tradeoff_command(args, out=None):
     import os
     import sys
     out = out or sys.stdout
+    if args.structure is None and args.scene is None:
+        args.scene = "liquid"  # the default: the LJ argon liquid
     if args.cutoff is None:
-        raise ValueError("--cutoff: required (the cutoff radius RC in Å)")
+        # default: 2.5 sigma for LJ, ASE's Morse cutoff 2.7 r0 for Morse
+        if str(args.potential).lower() == "morse":
+            args.cutoff = 2.7 * _positive_float(args.r0, "--r0")
+        else:
+            args.cutoff = 2.5 * _positive_float(args.sigma, "--sigma")
     cutoff = _positive_float(args.cutoff, "--cutoff")
     widths = _parse_widths_text(args.widths)
     md = _nonnegative_int(args.md, "--md")

@@ -40,3 +40,159 @@ def test_demo_md_agrees_with_ase():
     assert "identical to MDAnalysis InterRDF" in text
     assert "identical to ase.neighborlist.NeighborList" in text
     assert text.rstrip().endswith("verdict: PASS")
+
+
+# --------------------------------------------------------------------------
+# the CLI a newcomer meets (issue 12, item 6): subprocess tests
+# --------------------------------------------------------------------------
+
+import inspect  # noqa: E402
+import json  # noqa: E402
+import os  # noqa: E402
+import shutil  # noqa: E402
+
+import pytest  # noqa: E402
+
+import ase_mlg  # noqa: E402
+
+
+def _cli(*args, timeout=300):
+    """Run the installed ``ase-mlg`` script (the module where the script is
+    not on PATH), output to pipes: not a terminal."""
+    exe = shutil.which("ase-mlg")
+    cmd = [exe] if exe else [sys.executable, "-m", "ase_mlg.cli"]
+    return subprocess.run(cmd + list(args), capture_output=True, text=True,
+                          timeout=timeout, stdin=subprocess.DEVNULL)
+
+
+def test_bare_command_lists_commands():
+    res = _cli()
+    assert res.returncode == 0, res.stderr
+    for command in ("demo", "rdf", "tradeoff"):
+        assert f"\n    {command} " in res.stdout
+    assert "--version" in res.stdout and res.stderr == ""
+
+
+def test_version():
+    from importlib.metadata import version
+    res = _cli("--version")
+    assert res.returncode == 0
+    assert res.stdout.strip() == f"ase-mlg {ase_mlg.__version__}"
+    assert ase_mlg.__version__ == version("ase-mlg")
+
+
+def test_unknown_command_is_one_line():
+    res = _cli("demolish")
+    assert res.returncode == 2
+    assert len(res.stderr.strip().splitlines()) == 1 and "demolish" in res.stderr
+
+
+@pytest.mark.parametrize("command", ["demo", "tradeoff"])
+def test_every_option_has_help(command):
+    from ase_mlg.cli import _parser
+    parser = _parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    assert sub.choices.keys() >= {"demo", "rdf", "tradeoff"}
+    for p in (parser, sub.choices[command]):
+        for action in p._actions:
+            if action.dest == "command":
+                continue
+            assert action.help and len(action.help) > 8, \
+                f"{command}: {action.option_strings or action.dest} has no help"
+            # a stated default is the real one
+            if "%(default)s" in (action.help or ""):
+                assert action.default is not None
+    res = _cli(command, "-h")
+    assert res.returncode == 0 and "default" in res.stdout
+
+
+def test_tradeoff_skin_default_is_the_calculators():
+    from ase_mlg.calculator import MLGCalculator
+    from ase_mlg.cli import _parser
+    calc_skin = inspect.signature(MLGCalculator.__init__).parameters["skin"].default
+    args = _parser().parse_args(["tradeoff"])
+    assert float(args.skin) == calc_skin == 1.0
+    assert args.scene is None and args.structure is None and args.cutoff is None
+
+
+def test_tradeoff_runs_with_defaults():
+    """No scene, no cutoff: the LJ argon liquid at rc = 2.5 sigma (a small
+    one and one timed repeat here, to stay fast), MD with the calculator's
+    skin."""
+    res = _cli("tradeoff", "--natoms", "256", "--repeats", "1", "--widths", "3,5",
+               "--md", "3", "--json")
+    assert res.returncode == 0, res.stderr
+    meta = json.loads(res.stdout)["meta"]
+    assert meta["scene"] == "liquid"
+    assert meta["cutoff"] == pytest.approx(2.5 * 3.405)
+    assert "LennardJones" in meta["potential"]
+    assert meta["skin"] == 1.0
+    assert meta["md_steps"] == 3
+    # Morse's default cutoff is ASE's, 2.7 r0
+    res = _cli("tradeoff", "--natoms", "256", "--repeats", "1", "--widths", "3",
+               "--potential", "morse", "--json")
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["meta"]["cutoff"] == pytest.approx(2.7 * 2.55)
+
+
+def test_tradeoff_bad_default_override_is_one_line():
+    res = _cli("tradeoff", "--sigma", "-1")
+    assert res.returncode == 2
+    assert len(res.stderr.strip().splitlines()) == 1 and "--sigma" in res.stderr
+
+
+DEMO = ("demo", "--natoms", "256", "--steps", "20", "--md-steps", "10")
+
+
+def test_demo_narrates_and_draws_no_bars_into_a_pipe():
+    res = _cli(*DEMO)
+    assert res.returncode == 0, res.stderr
+    out = res.stdout
+    # says what it does before the slow (compiling) steps
+    assert out.index("building the grid") < out.index("grid (")
+    assert out.index("loading the calculator's compiled kernels") \
+        < out.index("NVE MD, 10 steps")
+    assert out.index("checking the trajectory") < out.index("RDF of")
+    assert out.rstrip().endswith("verdict: PASS")
+    # no progress bars (tqdm's or MDAnalysis's) when not a terminal
+    for stream in (res.stdout, res.stderr):
+        assert "\r" not in stream and "%|" not in stream and "it/s" not in stream
+
+
+def test_demo_draws_progress_bars_on_a_terminal():
+    import pty
+    import select
+    import fcntl
+    import struct
+    import termios
+    master, slave = pty.openpty()
+    # a terminal 100 columns wide (a fresh pty has size 0 x 0)
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 100, 0, 0))
+    exe = shutil.which("ase-mlg")
+    cmd = ([exe] if exe else [sys.executable, "-m", "ase_mlg.cli"]) + list(DEMO)
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=slave,
+                            stderr=slave, close_fds=True)
+    os.close(slave)
+    chunks = []
+    while True:
+        ready, _, _ = select.select([master], [], [], 1.0)
+        if ready:
+            try:
+                data = os.read(master, 65536)
+            except OSError:  # the child closed the terminal
+                break
+            if not data:
+                break
+            chunks.append(data)
+        elif proc.poll() is not None:
+            break
+    proc.wait(timeout=300)
+    os.close(master)
+    text = b"".join(chunks).decode(errors="replace")
+    assert proc.returncode == 0, text[-2000:]
+    assert "verdict: PASS" in text
+    assert "moving atoms" in text and "%|" in text  # tqdm bars
+    assert "NVE MD (5 fs)" in text
+    # the RDF check's progress (MDAnalysis's bars for both RDF runs)
+    check = text[text.index("checking the trajectory"):text.index("(demo_md.pdb")]
+    assert check.count("%|") >= 2
