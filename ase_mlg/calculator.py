@@ -29,22 +29,40 @@ in ``calc.stats``.
 
 import numpy as np
 from ase.calculators.calculator import Calculator, all_changes
-from ase.stress import full_3x3_to_voigt_6_stress
+from numba import njit
 
 from .geometry import as_positions
 from .grid import MLG, template_pairs
-from .potentials import PairPotential, pair_vectors
+from .potentials import PairPotential, shift_vectors
+from .query import BlockIndex, find_pairs, half_list, pair_list
 
 __all__ = ["MLGCalculator"]
 
 
 def _exact_half_pairs(grid, cutoff):
     """Every pair with d < cutoff once: (i, j, S)."""
-    from .query import BlockIndex, find_pairs
-    index = BlockIndex(grid)
-    res = find_pairs(index, np.full(grid.natoms, cutoff), cut=cutoff,
+    res = find_pairs(BlockIndex(grid), np.full(grid.natoms, cutoff), cut=cutoff,
                      half=True, quantities="ijS")
     return res["i"], res["j"], res["S"]
+
+
+@njit(cache=True)
+def _max_deviation(positions, ref, M):
+    """Largest ``|positions - ref @ M|`` (Å): how far atoms have moved
+    beyond the affine map ``M`` of the cell (the identity in NVE)."""
+    worst = 0.0
+    for a in range(positions.shape[0]):
+        s = 0.0
+        for c in range(3):
+            x = positions[a, c] - (ref[a, 0] * M[0, c] + ref[a, 1] * M[1, c]
+                                   + ref[a, 2] * M[2, c])
+            s += x * x
+        if not s <= worst:  # also NaN: never valid
+            worst = s
+    return np.sqrt(worst)
+
+
+_EYE = np.eye(3)
 
 
 class MLGCalculator(Calculator):
@@ -127,38 +145,68 @@ class MLGCalculator(Calculator):
         self._list = None
 
     # -- the pair list ------------------------------------------------------
-    def _fresh_grid(self, atoms, positions):
-        if (self.grid is None or self.grid.natoms != len(atoms)
-                or not np.array_equal(self.grid.box.cell, atoms.cell.array)
-                or not np.array_equal(self.grid.box.pbc, atoms.pbc)):
-            self.grid = MLG(positions, atoms.cell.array, atoms.pbc,
-                            **self.grid_kwargs)
+    def _update_grid(self, atoms, positions):
+        cell, pbc = atoms.cell.array, atoms.pbc
+        if self.grid is None or self.grid.natoms != len(atoms):
+            self.grid = MLG(positions, cell, pbc, **self.grid_kwargs)
             self.stats["grid_builds"] += 1
-            return True
-        return False
+            return
+        # a changed cell (NPT) keeps the grid's order: the grid rescales
+        # its coordinates and repairs the order by sweeps
+        rec = self.grid.update(positions, cell=cell, pbc=pbc)
+        self.stats["sweeps"] += rec["sweeps"]
+        self.stats["swaps"] += rec["swaps"]
+        self.stats["grid_rebuilds"] += int(rec["rebuilt"])
 
     def _build_list(self, atoms, positions):
-        if not self._fresh_grid(atoms, positions):
-            rec = self.grid.update(positions)
-            self.stats["sweeps"] += rec["sweeps"]
-            self.stats["swaps"] += rec["swaps"]
-            self.stats["grid_rebuilds"] += int(rec["rebuilt"])
-        rlist = self.potential.cutoff + self.skin
+        old, self._list = self._list, None
+        self._update_grid(atoms, positions)
+        rc = self.potential.cutoff
+        # the query keeps d < rlist; the potential keeps d <= rc
+        rlist = rc + self.skin if self.skin > 0 else float(np.nextafter(rc, np.inf))
         if self.auto is not None:
             self.template = self.auto.choose(self.grid, self.potential, atoms.numbers)
+        index = BlockIndex(self.grid)
+        n = len(atoms)
         if self.template is None:
-            i, j, S = _exact_half_pairs(self.grid, rlist)
+            hint = None if old is None or old.natoms != n else 1.02 * len(old) / max(n, 1)
+            pl = half_list(index, np.full(n, rlist), cut=rlist,
+                           pairs_per_atom=hint, reuse=old)
         else:
             i, j, S, _ = template_pairs(self.grid, self.template, rlist)
-        self._list = (i, j, S.astype(np.float64), positions.copy())
+            pl = pair_list(index, i, j, S)
+        del old, index
+        self._types = np.ascontiguousarray(self.potential.prepare(atoms.numbers)[0][pl.order])
+        self._ref = positions.copy()
+        self._ref_cell = atoms.cell.array.copy()
+        self._rlist = rlist
+        self._shifted = bool(pl.images.any())
+        self._list = pl
         self.stats["list_builds"] += 1
 
-    def _list_valid(self, positions):
+    def _list_valid(self, positions, cell):
+        """Does the list still hold every pair within the cutoff?
+
+        A pair left out was at ``d0 >= rlist`` when the list was built.
+        With ``M`` the affine map of the cell since then and ``u`` each
+        atom's displacement beyond it, its distance now is at least
+        ``smin(M) d0 - 2 max|u|`` (``smin`` the smallest singular value of
+        M), so the list is valid while ``smin(M) rlist - 2 max|u| > rc``.
+        At fixed cell that is the usual Verlet test ``max|u| < skin / 2``;
+        under NPT the skin covers displacement and strain together, the
+        test LAMMPS and GROMACS apply.
+        """
         if self._list is None or self.skin == 0.0:
             return False
-        moved = positions - self._list[3]
-        return float(np.einsum("ij,ij->i", moved, moved).max(initial=0.0)) \
-            < (0.5 * self.skin) ** 2
+        ref_cell = self._ref_cell
+        if np.array_equal(cell, ref_cell):
+            return _max_deviation(positions, self._ref, _EYE) < 0.5 * self.skin
+        if abs(np.linalg.det(ref_cell)) < 1e-12 * max(np.abs(ref_cell).max(), 1.0) ** 3:
+            return False
+        M = np.linalg.solve(ref_cell, cell)
+        smin = float(np.linalg.svd(M, compute_uv=False).min())
+        umax = _max_deviation(positions, self._ref, np.ascontiguousarray(M))
+        return smin * self._rlist - 2.0 * umax > self.potential.cutoff
 
     # -- ASE interface ------------------------------------------------------
     def check_state(self, atoms, tol=1e-15):
@@ -190,25 +238,35 @@ class MLGCalculator(Calculator):
         Calculator.calculate(self, atoms, properties, system_changes)
         atoms = self.atoms
         positions = as_positions(atoms.positions)
+        cell = atoms.cell.array
         if self._list is not None and (
-                "numbers" in system_changes or "cell" in system_changes
-                or "pbc" in system_changes
-                or len(positions) != len(self._list[3])):
+                "numbers" in system_changes or "pbc" in system_changes
+                or len(positions) != self._list.natoms):
             self._list = None
-        if not self._list_valid(positions):
+            if "pbc" in system_changes or len(positions) != self.grid.natoms:
+                self.grid = None
+        if not self._list_valid(positions, cell):
             self._build_list(atoms, positions)
-        i, j, S, _ = self._list
-        D, d = pair_vectors(positions, i, j, S, np.ascontiguousarray(atoms.cell.array))
-        res = self.potential.evaluate(atoms.numbers, i, j, D, d,
-                                      per_atom_virials="stresses" in properties)
+        pl = self._list
+        # positions in grid order: neighbours are close in memory whatever
+        # the atoms' index order
+        X = positions[pl.order]
+        if self._shifted:
+            X += pl.images @ cell
+        res = self.potential.sum_pairs(
+            X, self._types, pl.rowptr, pl.nbr, pl.code,
+            shift_vectors(pl.shifts, cell), pl.order,
+            energies="energies" in properties, virials="stresses" in properties)
         self.stats["calls"] += 1
-        self.stats["pairs"] += len(i)
+        self.stats["pairs"] += len(pl)
         self.results["energy"] = res["energy"]
         self.results["free_energy"] = res["energy"]
-        self.results["energies"] = res["energies"]
         self.results["forces"] = res["forces"]
+        if "energies" in res:
+            self.results["energies"] = res["energies"]
         if atoms.cell.rank == 3:
-            volume = atoms.get_volume()
-            self.results["stress"] = full_3x3_to_voigt_6_stress(-res["virial"] / volume)
+            volume = abs(np.linalg.det(cell))
+            v = res["virial"]
+            self.results["stress"] = -v / volume
             if "virials_voigt" in res:
                 self.results["stresses"] = -res["virials_voigt"] / volume

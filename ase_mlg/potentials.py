@@ -61,14 +61,19 @@ True
 :func:`lennard_jones_mixture` is a worked example built the same way.
 """
 
+import functools
 import math
+import re
 from collections.abc import Mapping
 
 import numba
 import numpy as np
 from ase.data import atomic_numbers, chemical_symbols
+from numba import prange
 from numba import types as nbt
 from numba.core.dispatcher import Dispatcher
+
+from .parallel import serial_and_parallel
 
 __all__ = [
     'PairPotential',
@@ -85,126 +90,241 @@ __all__ = [
 #: Numba signature every pair function is compiled to: ``(r, p) -> (e, dedr)``.
 PAIR_SIGNATURE = nbt.UniTuple(nbt.float64, 2)(nbt.float64, nbt.float64[::1])
 
+# ---------------------------------------------------------------- the kernel
+
 # Error codes returned by the kernel; the Python side turns them into messages
 # because a numba exception cannot carry the pair's indices and distance.
-_OK, _BAD_INDEX, _BAD_DISTANCE, _BELOW_RMIN, _NON_FINITE = range(5)
+_OK, _BAD_DISTANCE, _BELOW_RMIN, _NON_FINITE = range(4)
 
 
-def _kernel_signature(index):
-    f64 = nbt.float64
-    return nbt.Tuple((f64, nbt.int64, nbt.int64))(
-        # A FunctionType argument (a function pointer) instead of a dispatcher
-        # type: the kernel is compiled once for all pair functions, and its
-        # on-disk cache stays valid (a dispatcher argument is specialised per
-        # function object and misses the cache in every new process).
-        nbt.FunctionType(PAIR_SIGNATURE),
-        index[::1], index[::1], f64[:, ::1], f64[::1],
-        nbt.int32[::1], f64[:, :, ::1], f64[:, ::1], f64[:, ::1],
-        f64[::1], f64[:, ::1], f64[::1], f64[:, ::1],
-    )
+def _pair_sum(pair, args):
+    """Energy, forces and virials of a half pair list, one fused pass.
 
-
-@numba.njit([_kernel_signature(nbt.int32), _kernel_signature(nbt.int64)],
-            cache=True, nogil=True, error_model='numpy')
-def accumulate_pairs(pair, i, j, D, d, types, params, cutoffs, rmin,
-                     energies, forces, virial, virials):
-    """Accumulate a half pair list into energies, forces and virials.
-
-    Low-level kernel behind :meth:`PairPotential.evaluate`; the output
-    arrays are added to, not overwritten.
+    The pair function is a compile-time argument (a numba dispatcher), so it
+    is inlined into the loop.  Rows are split into ``len(rows) - 1`` chunks
+    of about equal pair counts, one per thread; each chunk accumulates
+    into its own buffers ``fbuf[c]`` (and ``ebuf[c]``, ``vbuf[c]`` when
+    per-atom energies or virials are wanted: pass zero-length second axes
+    otherwise), which are then summed in chunk order and scattered to atom
+    order (``forces[order[t]]``).  The result is therefore the same on
+    every run with the same number of chunks.
 
     Parameters
     ----------
-    pair : numba function ``(r, p) -> (e, dedr)``, see :data:`PAIR_SIGNATURE`.
-    i, j : int32[M] or int64[M]
-        Half pair list, each pair once.
-    D : float64[M, 3]
-        Vector from atom ``i`` to (the image of) atom ``j``, Å.
-    d : float64[M]
-        Its norm, Å.
+    pair : numba function ``(r, p) -> (e, dE/dr)``
+    args : tuple
+        ``(squared, X, types, rowptr, nbr, code, svec, params, cut2, rmin2,
+        check_rmin, rows, order, fbuf, ebuf, vbuf, part, forces, energies,
+        virials)`` (one tuple, so that the cached entry points of the
+        built-in potentials below stay one line each):
+    squared : bool
+        ``pair`` takes ``r**2`` and returns ``(e, dE/dr / r)`` instead
+        (no square root, one division less: the built-in LJ).
+    X : float64[N, 3]
+        Positions in row order, Å.
     types : int32[N]
-        Type index of each atom.
+        Type index of each row.
+    rowptr, nbr, code : int64[N + 1], int32[M], uint8[M] or int32[M]
+        The half list: pairs ``(t, nbr[q])`` for ``q`` in
+        ``rowptr[t]:rowptr[t + 1]``, ``D = X[nbr[q]] - X[t] + svec[code[q]]``.
+    svec : float64[K, 3]
+        Cartesian cell shift of every code, Å.
     params : float64[T, T, P]
-        Parameter row of each type pair.
-    cutoffs, rmin : float64[T, T]
-        Pairs with ``d >= cutoffs`` are skipped; ``d < rmin`` is an error.
-    energies : float64[N]
-        Per-atom energies, eV; each pair energy is split half/half.
-    forces : float64[N, 3]
-        eV/Å.
-    virial : float64[6]
-        Total virial in Voigt order (xx, yy, zz, yz, xz, xy), eV: the sum of
-        each pair's ``-D (x) dE/dD``.
-    virials : float64[N, 6] or float64[0, 6]
-        Per-atom virials, Voigt order, eV: half of each pair's virial to each
-        atom.  Pass an empty array to skip them (they cost as much as the
-        forces and MD does not need them).
+    cut2, rmin2 : float64[T, T]
+        Squared cutoff (pairs with ``d**2 > cut2`` are skipped: ASE's LJ
+        keeps ``d == rc``) and squared ``rmin`` (closer pairs are counted
+        as errors, only with ``check_rmin``), Å².
+    part : float64[C, 9]
+        Out, per chunk: energy (eV), virial (6, eV), the sum of every
+        pair's ``dE/dr / r`` (not finite if any pair energy, force or
+        distance was bad: no per-pair branch in the loop) and the number of
+        pairs below rmin.  :func:`_first_bad_pair` then names the pair.
 
-    Returns
-    -------
-    energy : float
-        Total energy, eV.
-    bad : int
-        Index of the first offending pair, or -1.
-    code : int
-        Why that pair failed (one of the module's ``_BAD_*`` codes).
+    Out: ``forces`` (N, 3) eV/Å, ``energies`` (N or 0) eV, ``virials``
+    (N or 0, 6) eV, in atom order.  Virials are ``-D (x) dE/dD`` in Voigt
+    order (xx, yy, zz, yz, xz, xy), half of each pair to each atom.
     """
-    n = energies.shape[0]
-    per_atom = virials.shape[0] > 0
-    # Neumaier-compensated total: 10^7 pair energies of both signs would
-    # otherwise lose digits to rounding.
-    energy = 0.0
-    comp = 0.0
-    # Slicing a fresh row view for every pair costs reference counting; reuse
-    # the last one while the type pair does not change.
-    last_a, last_b = 0, 0
-    p = params[0, 0]
-    for k in range(i.shape[0]):
-        a = i[k]
-        b = j[k]
-        if a < 0 or a >= n or b < 0 or b >= n:
-            return energy, k, _BAD_INDEX
-        ta = types[a]
-        tb = types[b]
-        r = d[k]
-        if r >= cutoffs[ta, tb]:
-            continue
-        if not r > 0.0:  # also catches NaN
-            return energy, k, _BAD_DISTANCE
-        if r < rmin[ta, tb]:
-            return energy, k, _BELOW_RMIN
-        if ta != last_a or tb != last_b:
-            last_a, last_b = ta, tb
-            p = params[ta, tb]
-        e, dedr = pair(r, p)
-        if not (math.isfinite(e) and math.isfinite(dedr)):
-            return energy, k, _NON_FINITE
-        t = energy + e
-        if abs(energy) >= abs(e):
-            comp += (energy - t) + e
-        else:
-            comp += (e - t) + energy
-        energy = t
-        energies[a] += 0.5 * e
-        energies[b] += 0.5 * e
-        s = dedr / r
-        dx, dy, dz = D[k, 0], D[k, 1], D[k, 2]
-        fx, fy, fz = s * dx, s * dy, s * dz  # force on a; minus that on b
-        forces[a, 0] += fx
-        forces[a, 1] += fy
-        forces[a, 2] += fz
-        forces[b, 0] -= fx
-        forces[b, 1] -= fy
-        forces[b, 2] -= fz
-        # Central forces give a symmetric virial: six components suffice.
-        w = (fx * dx, fy * dy, fz * dz, fy * dz, fx * dz, fx * dy)
-        for c in range(6):
-            virial[c] -= w[c]
-        if per_atom:
-            for c in range(6):
-                virials[a, c] -= 0.5 * w[c]
-                virials[b, c] -= 0.5 * w[c]
-    return energy + comp, -1, _OK
+    (squared, X, types, rowptr, nbr, code, svec, params, cut2, rmin2,
+     check_rmin, rows, order, fbuf, ebuf, vbuf, part, forces, energies,
+     virials) = args
+    nchunk = rows.shape[0] - 1
+    want_e = ebuf.shape[1] > 0
+    want_v = vbuf.shape[1] > 0
+    typed = params.shape[0] > 1  # one species-agnostic row: no lookups
+    for c in prange(nchunk):
+        F = fbuf[c]
+        F[:] = 0.0
+        if want_e:
+            ebuf[c, :] = 0.0
+        if want_v:
+            vbuf[c, :, :] = 0.0
+        # Neumaier-compensated sum of row energies: 10^7 pair energies of
+        # both signs would otherwise lose digits to rounding
+        energy = 0.0
+        comp = 0.0
+        check = 0.0
+        nlow = 0
+        v0 = v1 = v2 = v3 = v4 = v5 = 0.0
+        last_a = -1
+        last_b = -1
+        p = params[0, 0]
+        for t in range(rows[c], rows[c + 1]):
+            x0 = X[t, 0]
+            x1 = X[t, 1]
+            x2 = X[t, 2]
+            ta = types[t] if typed else 0
+            ft0 = ft1 = ft2 = 0.0
+            erow = 0.0
+            for q in range(rowptr[t], rowptr[t + 1]):
+                u = nbr[q]
+                k = code[q]
+                # as ASE: positions[j] - positions[i] + S @ cell
+                dx = (X[u, 0] - x0) + svec[k, 0]
+                dy = (X[u, 1] - x1) + svec[k, 1]
+                dz = (X[u, 2] - x2) + svec[k, 2]
+                r2 = dx * dx + dy * dy + dz * dz
+                tb = types[u] if typed else 0
+                if r2 > cut2[ta, tb]:
+                    continue
+                if check_rmin and r2 < rmin2[ta, tb]:
+                    nlow += 1
+                if ta != last_a or tb != last_b:
+                    last_a, last_b = ta, tb
+                    p = params[ta, tb]
+                if squared:
+                    e, s = pair(r2, p)
+                else:
+                    r = math.sqrt(r2)
+                    e, dedr = pair(r, p)
+                    s = dedr / r
+                erow += e
+                check += s  # r = 0 or NaN makes it non-finite
+                fx = s * dx  # force on t; minus that on u
+                fy = s * dy
+                fz = s * dz
+                ft0 += fx
+                ft1 += fy
+                ft2 += fz
+                F[u, 0] -= fx
+                F[u, 1] -= fy
+                F[u, 2] -= fz
+                # central forces give a symmetric virial: six components
+                w0 = fx * dx
+                w1 = fy * dy
+                w2 = fz * dz
+                w3 = fy * dz
+                w4 = fx * dz
+                w5 = fx * dy
+                v0 -= w0
+                v1 -= w1
+                v2 -= w2
+                v3 -= w3
+                v4 -= w4
+                v5 -= w5
+                if want_e:
+                    ebuf[c, t] += 0.5 * e
+                    ebuf[c, u] += 0.5 * e
+                if want_v:
+                    for h in range(2):
+                        a = t if h == 0 else u
+                        vbuf[c, a, 0] -= 0.5 * w0
+                        vbuf[c, a, 1] -= 0.5 * w1
+                        vbuf[c, a, 2] -= 0.5 * w2
+                        vbuf[c, a, 3] -= 0.5 * w3
+                        vbuf[c, a, 4] -= 0.5 * w4
+                        vbuf[c, a, 5] -= 0.5 * w5
+            F[t, 0] += ft0
+            F[t, 1] += ft1
+            F[t, 2] += ft2
+            s = energy + erow
+            if abs(energy) >= abs(erow):
+                comp += (energy - s) + erow
+            else:
+                comp += (erow - s) + energy
+            energy = s
+        part[c, 0] = energy + comp
+        part[c, 1] = v0
+        part[c, 2] = v1
+        part[c, 3] = v2
+        part[c, 4] = v3
+        part[c, 5] = v4
+        part[c, 6] = v5
+        part[c, 7] = check
+        part[c, 8] = nlow
+    # sum the chunks' buffers in chunk order, back in atom order
+    for t in prange(X.shape[0]):
+        a = order[t]
+        for x in range(3):
+            s = 0.0
+            for c in range(nchunk):
+                s += fbuf[c, t, x]
+            forces[a, x] = s
+        if want_e:
+            s = 0.0
+            for c in range(nchunk):
+                s += ebuf[c, t]
+            energies[a] = s
+        if want_v:
+            for x in range(6):
+                s = 0.0
+                for c in range(nchunk):
+                    s += vbuf[c, t, x]
+                virials[a, x] = s
+
+
+# Threads pay off only on long lists (waking them costs more than a short
+# list): one Python function, compiled serial and threaded.  With a user's
+# pair function as its (compile-time) argument the kernel is compiled once
+# per process: numba's on-disk cache cannot key a function argument.  The
+# built-in potentials get cached entry points below, the pair function
+# inlined into each.
+_GENERIC = serial_and_parallel(_pair_sum, cache=False, nogil=True,
+                               error_model='numpy')
+_pair_sum_inline = numba.njit(inline='always', error_model='numpy')(_pair_sum)
+PARALLEL_MIN_PAIRS = 50_000
+
+
+@numba.njit(cache=True, error_model='numpy')
+def _first_bad_pair(pair, squared, X, types, rowptr, nbr, code, svec, params,
+                    cut2, rmin2):
+    """The first pair of the list that :func:`_pair_sum` flagged (error
+    path only): ``(q, why)``, or ``(-1, _OK)``."""
+    for t in range(X.shape[0]):
+        ta = types[t]
+        for q in range(rowptr[t], rowptr[t + 1]):
+            u = nbr[q]
+            k = code[q]
+            dx = (X[u, 0] - X[t, 0]) + svec[k, 0]
+            dy = (X[u, 1] - X[t, 1]) + svec[k, 1]
+            dz = (X[u, 2] - X[t, 2]) + svec[k, 2]
+            r2 = dx * dx + dy * dy + dz * dz
+            tb = types[u]
+            if r2 > cut2[ta, tb]:
+                continue
+            if not r2 > 0.0:  # also NaN
+                return q, _BAD_DISTANCE
+            if r2 < rmin2[ta, tb]:
+                return q, _BELOW_RMIN
+            if squared:
+                e, s = pair(r2, params[ta, tb])
+            else:
+                r = math.sqrt(r2)
+                e, dedr = pair(r, params[ta, tb])
+                s = dedr / r
+            if not (math.isfinite(e) and math.isfinite(s)):
+                return q, _NON_FINITE
+    return -1, _OK
+
+_EMPTY_RMIN = np.zeros((1, 1))
+
+
+def shift_vectors(shifts, cell):
+    """``S @ cell`` for integer shifts S (K, 3), in the operation order of
+    ``ase.neighborlist`` (``s0 * c0 + s1 * c1 + s2 * c2``), Å."""
+    cell = np.asarray(cell, dtype=np.float64)
+    S = np.asarray(shifts, dtype=np.float64)
+    return np.ascontiguousarray(S[:, 0:1] * cell[0] + S[:, 1:2] * cell[1]
+                                + S[:, 2:3] * cell[2])
 
 
 def _pair_vectors(positions, i, j, shifts, cell, D, d):
@@ -256,37 +376,54 @@ def _lj(r2, sigma, epsilon):
 
 
 @numba.njit(cache=True, error_model='numpy')
-def lennard_jones_shifted(r, p):
-    """Lennard-Jones shifted to zero at the cutoff (ASE ``smooth=False``).
+def lennard_jones_shifted_r2(r2, p):
+    """Lennard-Jones shifted to zero at the cutoff (ASE ``smooth=False``),
+    squared form (``squared=True`` in :class:`PairPotential`).
 
     ``p = [sigma (Å), epsilon (eV), shift (eV)]`` where ``shift`` is the
-    unshifted energy at the cutoff.  Returns ``(e, dE/dr)``.
+    unshifted energy at the cutoff.  Takes ``r**2`` (Å²) and returns
+    ``(e, dE/dr / r)``: no square root, and the force is ASE's expression
+    to the last bit.
     """
-    r2 = r * r
     e, du = _lj(r2, p[0], p[1])
-    return e - p[2], du * r
+    return e - p[2], du
 
 
 @numba.njit(cache=True, error_model='numpy')
-def lennard_jones_smooth(r, p):
-    """Lennard-Jones times ASE's C^1 cutoff function between ro and rc.
+def lennard_jones_smooth_r2(r2, p):
+    """Lennard-Jones times ASE's C^1 cutoff function between ro and rc,
+    squared form: ``r**2`` (Å²) -> ``(e, dE/dr / r)``.
 
-    ``p = [sigma (Å), epsilon (eV), rc (Å), ro (Å)]``.  Returns
-    ``(e, dE/dr)``.
+    ``p = [sigma (Å), epsilon (eV), rc (Å), ro (Å)]``.
     """
-    r2 = r * r
     e, du = _lj(r2, p[0], p[1])
     rc2 = p[2] * p[2]
     ro2 = p[3] * p[3]
     if r2 < ro2:
-        return e, du * r
+        return e, du
     if r2 >= rc2:
         return 0.0, 0.0
     # ASE's cutoff function is a polynomial in r**2, hence the factor 2 below.
     den = (rc2 - ro2) ** 3
     fc = (rc2 - r2) ** 2 * (rc2 + 2.0 * r2 - 3.0 * ro2) / den
     dfc = 6.0 * (rc2 - r2) * (ro2 - r2) / den
-    return fc * e, (fc * du + 2.0 * dfc * e) * r
+    return fc * e, fc * du + 2.0 * dfc * e
+
+
+@numba.njit(cache=True, error_model='numpy')
+def lennard_jones_shifted(r, p):
+    """:func:`lennard_jones_shifted_r2` as a function of ``r``:
+    ``(e, dE/dr)``."""
+    e, du = lennard_jones_shifted_r2(r * r, p)
+    return e, du * r
+
+
+@numba.njit(cache=True, error_model='numpy')
+def lennard_jones_smooth(r, p):
+    """:func:`lennard_jones_smooth_r2` as a function of ``r``:
+    ``(e, dE/dr)``."""
+    e, du = lennard_jones_smooth_r2(r * r, p)
+    return e, du * r
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -308,6 +445,26 @@ def morse(r, p):
     fc = 6.0 * s**5 - 15.0 * s**4 + 10.0 * s**3
     dfc = -(30.0 * s**4 - 60.0 * s**3 + 30.0 * s**2) / (r2 - r1)
     return e * fc, de * fc + e * dfc
+
+
+# Cached kernels of the built-in potentials: module-level functions naming
+# their pair function, so numba can key them on disk.
+def _sum_lj_shifted(args):
+    _pair_sum_inline(lennard_jones_shifted_r2, args)
+
+
+def _sum_lj_smooth(args):
+    _pair_sum_inline(lennard_jones_smooth_r2, args)
+
+
+def _sum_morse(args):
+    _pair_sum_inline(morse, args)
+
+
+_FLAGS = dict(nogil=True, error_model='numpy')
+_BUILT_IN = {lennard_jones_shifted_r2: serial_and_parallel(_sum_lj_shifted, **_FLAGS),
+             lennard_jones_smooth_r2: serial_and_parallel(_sum_lj_smooth, **_FLAGS),
+             morse: serial_and_parallel(_sum_morse, **_FLAGS)}
 
 
 # ---------------------------------------------------------------- validation
@@ -408,11 +565,13 @@ class PairPotential:
         Tables ``float64[T, T, P]``, ``float64[T, T]``, ``float64[T, T]``.
     """
 
-    def __init__(self, pair, params, cutoffs, rmin=0.0, nparams=None):
+    def __init__(self, pair, params, cutoffs, rmin=0.0, nparams=None,
+                 squared=False):
         if not isinstance(pair, Dispatcher):
             raise TypeError(f'pair function {pair!r} must be compiled with '
                             f'@numba.njit')
         self.pair = pair
+        self.squared = bool(squared)
         if isinstance(params, Mapping):
             self._init_species(params, cutoffs, rmin)
         else:
@@ -506,14 +665,23 @@ class PairPotential:
     def _check_pair_function(self):
         # Run the kernel on an empty list so a pair function with the wrong
         # signature fails here, with a readable message, not mid-simulation.
+        self._cut2 = self.cutoffs ** 2
+        self._rmin2 = self.rmin ** 2
+        self._check_rmin = bool((self.rmin > 0).any())
         try:
-            accumulate_pairs(
-                self.pair, np.zeros(0, np.int64), np.zeros(0, np.int64),
-                np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int32),
-                self.params, self.cutoffs, self.rmin, np.zeros(0),
-                np.zeros((0, 3)), np.zeros(6), np.zeros((0, 6)))
+            # the pair function alone first: its return type must be a pair
+            self.pair.compile(PAIR_SIGNATURE.args)
+            ret = self.pair.overloads[PAIR_SIGNATURE.args].signature.return_type
+            if ret != PAIR_SIGNATURE.return_type:
+                raise TypeError(f'No conversion from {ret} to '
+                                f'{PAIR_SIGNATURE.return_type}')
+            self.sum_pairs(np.zeros((0, 3)), np.zeros(0, np.int32),
+                           np.zeros(1, np.int64), np.zeros(0, np.int32),
+                           np.zeros(0, np.uint8), np.zeros((1, 3)),
+                           np.zeros(0, np.int64))
         except (TypeError, numba.core.errors.NumbaError) as err:
-            lines = [ln for ln in str(err).splitlines() if ln.strip()]
+            text = re.sub(r'\x1b\[[0-9;]*m', '', str(err))
+            lines = [ln for ln in text.splitlines() if ln.strip()]
             detail = next((ln for ln in lines if not ln.startswith('Failed')),
                           lines[0] if lines else '')
             raise TypeError(
@@ -569,11 +737,12 @@ class PairPotential:
             Atomic numbers.
         i, j : int array (M,)
             Half pair list: each interacting pair once (``i == j`` allowed
-            for periodic images).  int32 or int64 avoid a copy.
+            for periodic images).
         D : float array (M, 3)
             Vector from atom ``i`` to (the image of) atom ``j``, Å.
         d : float array (M,), optional
-            ``|D|``, Å; computed if not given (not checked if given).
+            ``|D|``, Å; its shape is checked, its values are not used: the
+            kernel computes the distance from ``D``.
         per_atom_virials : bool
             Also return ``virials`` and ``virials_voigt`` (costly; MD does
             not need them).
@@ -594,72 +763,154 @@ class PairPotential:
             On malformed arrays, atom indices out of range, a pair closer than
             ``rmin`` or at distance 0, or a non-finite pair energy/force.
         """
-        types, params, cutoffs = self.prepare(numbers)
+        types = self.prepare(numbers)[0]
         n = len(types)
         i, j = _index_arrays(i, j)
         m = len(i)
         D = np.ascontiguousarray(D, dtype=np.float64)
         if D.shape != (m, 3):
             raise ValueError(f'D must have shape ({m}, 3), got {D.shape}')
-        if d is None:
-            d = np.sqrt(np.einsum('ij,ij->i', D, D))
-        else:
-            d = np.ascontiguousarray(d, dtype=np.float64)
-            if d.shape != (m,):
-                raise ValueError(f'd must have shape ({m},), got {d.shape}')
-
-        energies = np.zeros(n)
-        forces = np.zeros((n, 3))
-        voigt = np.zeros((n if per_atom_virials else 0, 6))
-        total = np.zeros(6)
-        try:
-            energy, bad, code = accumulate_pairs(
-                self.pair, i, j, D, d, types, params, cutoffs, self.rmin,
-                energies, forces, total, voigt)
-        except ArithmeticError as err:
-            # Pair functions compiled with error_model='python' raise here;
-            # find the pair in Python (error path only) to name it.
-            bad = self._find_raising_pair(i, j, d, types)
-            if bad < 0:
-                raise
-            raise self._pair_error(i, j, d, types, bad, _NON_FINITE,
-                                   err) from None
-        if bad >= 0:
-            raise self._pair_error(i, j, d, types, bad, code)
-        res = {'energy': energy, 'energies': energies, 'forces': forces,
-               'virial': total[_VOIGT_TO_3X3]}
+        if d is not None and np.shape(d) != (m,):
+            raise ValueError(f'd must have shape ({m},), got {np.shape(d)}')
+        for name, a in (('i', i), ('j', j)):
+            out = np.flatnonzero((a < 0) | (a >= n))
+            if len(out):
+                k = out[0]
+                raise ValueError(f'pair {k}: atom index ({i[k]}, {j[k]}) out '
+                                 f'of range for {n} atoms')
+        # the same kernel as the calculator's: rows by i, every pair its
+        # own "cell shift" D[k] from atoms at the origin (0 - 0 + D is D)
+        perm = np.argsort(i, kind='stable')
+        rowptr = np.zeros(n + 1, np.int64)
+        np.cumsum(np.bincount(i, minlength=n), out=rowptr[1:])
+        res = self.sum_pairs(np.zeros((n, 3)), types, rowptr,
+                             j[perm].astype(np.int32), perm.astype(np.int32),
+                             D, np.arange(n), energies=True,
+                             virials=per_atom_virials)
+        res['virial'] = res['virial'][_VOIGT_TO_3X3]
         if per_atom_virials:
-            res['virials'] = voigt[:, _VOIGT_TO_3X3]
-            res['virials_voigt'] = voigt
+            res['virials'] = res['virials_voigt'][:, _VOIGT_TO_3X3]
         return res
 
-    def _find_raising_pair(self, i, j, d, types):
-        for k in range(len(i)):
-            ta, tb = types[i[k]], types[j[k]]
-            if 0 < d[k] < self.cutoffs[ta, tb]:
+    def sum_pairs(self, X, types, rowptr, nbr, code, svec, order,
+                  energies=False, virials=False, threads=None):
+        """Energy, forces and virials over a half list in compressed rows.
+
+        The calculator's path (:class:`ase_mlg.query.PairList` in grid
+        order).  Pair ``q`` of row ``t`` is
+        ``D = X[nbr[q]] - X[t] + svec[code[q]]``; results come back in atom
+        order, row ``t`` being atom ``order[t]``.
+
+        Parameters
+        ----------
+        X : float64[N, 3]
+            Positions in row order, Å.
+        types : int32[N]
+            Type index of each row (see :meth:`prepare`).
+        rowptr, nbr, code : int64[N + 1], int32[M], uint8[M] or int32[M]
+        svec : float64[K, 3]
+            Cartesian cell shift of each code, Å.
+        order : int64[N]
+            Atom of each row.
+        energies, virials : bool
+            Also return per-atom ``energies`` (N,) eV and
+            ``virials_voigt`` (N, 6) eV.
+        threads : int, optional
+            Chunks (threads); default numba's thread count on long lists,
+            1 on short ones.  Same count, same bits.
+
+        Returns
+        -------
+        dict
+            ``energy`` (eV), ``forces`` (N, 3) eV/Å, ``virial`` (Voigt, 6)
+            eV, and ``energies`` / ``virials_voigt`` if asked for.
+        """
+        n = len(order)
+        m = int(rowptr[-1]) if len(rowptr) else 0
+        if threads is None:
+            threads = numba.get_num_threads() if m >= PARALLEL_MIN_PAIRS else 1
+        nchunk = max(1, min(int(threads), n))
+        # rows in chunks of about equal pair counts
+        rows = np.searchsorted(rowptr, np.linspace(0, m, nchunk + 1)).astype(np.int64)
+        rows[0], rows[-1] = 0, n
+        if self.pair in _BUILT_IN:
+            kernel = _BUILT_IN[self.pair][nchunk > 1]
+        else:
+            kernel = functools.partial(_GENERIC[nchunk > 1], self.pair)
+        out = {'forces': np.empty((n, 3))}
+        e_out = np.empty(n if energies else 0)
+        v_out = np.empty((n if virials else 0, 6))
+        args = (self.squared, X, types, rowptr, nbr, code, svec, self.params,
+                self._cut2, self._rmin2, self._check_rmin)
+        part = np.zeros((nchunk, 9))
+        try:
+            kernel(args + (rows, order, np.empty((nchunk, n, 3)),
+                           np.empty((nchunk, len(e_out))),
+                           np.empty((nchunk, len(v_out), 6)), part,
+                           out['forces'], e_out, v_out))
+            if part[:, 8].any() or not np.isfinite(part[:, [0, 7]]).all():
+                q, why = _first_bad_pair(self.pair, *args[:-1])
+                if q < 0:
+                    raise ValueError('non-finite total energy or force '
+                                     '(overflow of the pair sums)')
+                raise self._pair_error(X, types, rowptr, nbr, code, svec,
+                                       order, q, why)
+        except ArithmeticError as err:
+            # pair functions compiled with error_model='python' raise; find
+            # the pair in Python (error path only) to name it
+            q = self._find_raising_pair(X, types, rowptr, nbr, code, svec)
+            if q < 0:
+                raise
+            raise self._pair_error(X, types, rowptr, nbr, code, svec, order,
+                                   q, _NON_FINITE, err) from None
+        out['energy'] = math.fsum(part[:, 0])
+        out['virial'] = part[:, 1:7].sum(axis=0)
+        if energies:
+            out['energies'] = e_out
+        if virials:
+            out['virials_voigt'] = v_out
+        return out
+
+    def _pair_geometry(self, X, rowptr, nbr, code, svec, q):
+        t = int(np.searchsorted(rowptr, q, side='right') - 1)
+        u = int(nbr[q])
+        D = (X[u] - X[t]) + svec[code[q]]
+        return t, u, float(np.sqrt(D @ D))
+
+    def _find_raising_pair(self, X, types, rowptr, nbr, code, svec):
+        for q in range(int(rowptr[-1])):
+            t, u, r = self._pair_geometry(X, rowptr, nbr, code, svec, q)
+            ta, tb = types[t], types[u]
+            if 0 < r <= self.cutoffs[ta, tb]:
                 try:
-                    self.pair(d[k], self.params[ta, tb])
+                    self._call_pair(r, ta, tb)
                 except ArithmeticError:
-                    return k
+                    return q
         return -1
 
-    def _pair_error(self, i, j, d, types, k, code, cause=None):
-        """The ValueError describing why pair ``k`` failed."""
-        if code == _BAD_INDEX:
-            return ValueError(f'pair {k}: atom index ({i[k]}, {j[k]}) out of '
-                              f'range for {len(types)} atoms')
-        ta, tb = types[i[k]], types[j[k]]
-        where = f'atoms {i[k]} and {j[k]} at distance {d[k]:.6g} Å'
-        if code == _BAD_DISTANCE:
+    def _call_pair(self, r, ta, tb):
+        """``(e, dE/dr)`` of one pair at distance ``r`` (error path)."""
+        if self.squared:
+            e, du = self.pair(r * r, self.params[ta, tb])
+            return e, du * r
+        return self.pair(r, self.params[ta, tb])
+
+    def _pair_error(self, X, types, rowptr, nbr, code, svec, order, q, why,
+                    cause=None):
+        """The ValueError describing why pair ``q`` failed."""
+        t, u, r = self._pair_geometry(X, rowptr, nbr, code, svec, q)
+        ta, tb = types[t], types[u]
+        where = f'atoms {order[t]} and {order[u]} at distance {r:.6g} Å'
+        if why == _BAD_DISTANCE:
             return ValueError(f'{where}: distance must be > 0 (overlapping '
                               f'atoms?)')
-        if code == _BELOW_RMIN:
+        if why == _BELOW_RMIN:
             return ValueError(f'{where}: closer than rmin {self.rmin[ta, tb]} '
                               f'Å for {self._type_name(ta, tb)}')
         if cause is not None:
             what = f'{type(cause).__name__}: {cause}'
         else:
-            e, dedr = self.pair(d[k], self.params[ta, tb])
+            e, dedr = self._call_pair(r, ta, tb)
             what = f'energy {e}, dE/dr {dedr}'
         return ValueError(f'{where}: non-finite pair energy or force ({what})')
 
@@ -712,11 +963,12 @@ class LennardJones(PairPotential):
         self.sigma, self.epsilon, self.rc, self.ro = sigma, epsilon, rc, ro
         self.smooth = bool(smooth)
         if self.smooth:
-            super().__init__(lennard_jones_smooth, [sigma, epsilon, rc, ro],
-                             rc)
+            super().__init__(lennard_jones_smooth_r2, [sigma, epsilon, rc, ro],
+                             rc, squared=True)
         else:
             e0 = 4 * epsilon * ((sigma / rc) ** 12 - (sigma / rc) ** 6)
-            super().__init__(lennard_jones_shifted, [sigma, epsilon, e0], rc)
+            super().__init__(lennard_jones_shifted_r2, [sigma, epsilon, e0], rc,
+                             squared=True)
 
 
 class Morse(PairPotential):
@@ -792,4 +1044,5 @@ def lennard_jones_mixture(sigma, epsilon, rc=None):
             shift = 4 * eab * ((sab / rab) ** 12 - (sab / rab) ** 6)
             params[a, b] = [sab, eab, shift]
             cutoffs[a, b] = rab
-    return PairPotential(lennard_jones_shifted, params, cutoffs, nparams=3)
+    return PairPotential(lennard_jones_shifted_r2, params, cutoffs, nparams=3,
+                         squared=True)

@@ -73,7 +73,7 @@ import numba
 import numpy as np
 from numba import njit
 
-__all__ = ["BlockIndex", "PairList", "half_list", "find_pairs", "CUT_SCALAR",
+__all__ = ["BlockIndex", "PairList", "half_list", "pair_list", "find_pairs", "CUT_SCALAR",
            "CUT_RADII", "CUT_TABLE"]
 
 CUT_SCALAR, CUT_RADII, CUT_TABLE = 0, 1, 2
@@ -434,8 +434,9 @@ def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, Q, G, MS, BB, R2, S1,
     non-negative images and slots ``u >= t``.
 
     Kept pairs are written in row order (the row is the rank of slot ``t``)
-    as the rank of ``u`` and the code of ``S`` (``((S0 - slo0) * sdim1 +
-    S1 - slo1) * sdim2 + S2 - slo2``) at ``out_j/out_c[lo:lo + cap]``;
+    as the rank of ``u`` and the code of the image ``m`` (``((m0 - slo0) *
+    sdim1 + m1 - slo1) * sdim2 + m2 - slo2``; the cell shift of the pair is
+    ``S = m + MS[u] - MS[t]``) at ``out_j/out_c[lo:lo + cap]``;
     ``rowcount[rank of t]`` gets the row length.  Returns the number of
     pairs found, which may exceed ``cap``: nothing beyond ``cap`` is written
     and the caller scans again with room.  Runs without the GIL, one call
@@ -534,8 +535,8 @@ def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, Q, G, MS, BB, R2, S1,
                             continue
                     if total < cap:
                         out_j[lo + total] = slot_rank[u]
-                        out_c[lo + total] = ((S0 - slo[0]) * sdim[1]
-                                             + S1_ - slo[1]) * sdim[2] + S2 - slo[2]
+                        out_c[lo + total] = ((m0 - slo[0]) * sdim[1]
+                                             + m1 - slo[1]) * sdim[2] + m2 - slo[2]
                     total += 1
                     n += 1
             rowcount[slot_rank[t]] = n
@@ -561,15 +562,21 @@ class PairList:
     nbr : int32[M]
         Rank of the second atom of each pair.
     code : uint8[M] or int32[M]
-        Index of the pair's cell shift in ``shifts``.
+        Index of the pair's image in ``shifts``.
     shifts : int64[K, 3]
-        Cell shifts S: the pair is ``D = x[j] - x[i] + S @ cell``.
+        Images m.  The pair's cell shift is ``S = m + images[u] -
+        images[t]``: ``D = x[j] - x[i] + S @ cell``.
+    images : int64[N, 3]
+        Image of each rank that the grid keeps it in: ``x + images @ cell``
+        are the positions the grid orders.  An atom that has travelled
+        many cells changes these, never the (few) codes.
     zero_code : int
-        Code of S = 0.
+        Code of m = 0.
     """
 
-    def __init__(self, order, rowptr, nbr, code, shifts, zero_code):
+    def __init__(self, order, rowptr, nbr, code, shifts, images, zero_code):
         self.order = order
+        self.images = images
         self.rowptr = rowptr
         self.nbr = nbr
         self.code = code
@@ -587,7 +594,7 @@ class PairList:
     def nbytes(self):
         """Memory held by the list's arrays, bytes."""
         return sum(a.nbytes for a in (self.order, self.rowptr, self.nbr,
-                                      self.code, self.shifts))
+                                      self.code, self.shifts, self.images))
 
 
 def _shift_codes(slo, shi):
@@ -600,14 +607,10 @@ def _shift_codes(slo, shi):
     return sdim, shifts, dtype
 
 
-def _shift_bounds(index, rmax, pad):
-    """Bounds of ``S = m + MS[u] - MS[t]`` over every pair the scan can
-    keep: the image range ``m`` of the global box (as in ``_prepare``) and
-    the range of the stored images ``MS``."""
+def _image_bounds(index, rmax, pad):
+    """Bounds of the image ``m`` over every pair the scan can keep: the
+    image range of the global box (as in ``_prepare``)."""
     glob, periods = index.glob, index.periods
-    atoms = index.slot_atom >= 0
-    ms_lo = index.MS[atoms].min(axis=0)
-    ms_hi = index.MS[atoms].max(axis=0)
     slo = np.zeros(3, np.int64)
     shi = np.zeros(3, np.int64)
     R = rmax + pad
@@ -615,8 +618,7 @@ def _shift_bounds(index, rmax, pad):
         if periods[c] > 0.0:
             mlo = int(np.ceil((glob[c] - R - glob[3 + c]) / periods[c]))
             mhi = int(np.floor((glob[3 + c] + R - glob[c]) / periods[c]))
-            slo[c] = mlo + ms_lo[c] - ms_hi[c]
-            shi[c] = mhi + ms_hi[c] - ms_lo[c]
+            slo[c], shi[c] = mlo, mhi
     return slo, shi
 
 
@@ -688,7 +690,8 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     if n == 0:
         sdim, shifts, dtype = _shift_codes(np.zeros(3, np.int64), np.zeros(3, np.int64))
         return PairList(np.zeros(0, np.int64), np.zeros(1, np.int64),
-                        np.zeros(0, np.int32), np.zeros(0, dtype), shifts, 0)
+                        np.zeros(0, np.int32), np.zeros(0, dtype), shifts,
+                        np.zeros((0, 3), np.int64), 0)
     Q, rs, ts = _slot_values(index.slot_atom, index.positions, radii, types, int(mode))
     rmax = float(rat.max())
     # every periodic image within rmax is visited: refuse a cutoff that
@@ -705,7 +708,7 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     # fast distance decides only pairs farther than ftol from the cutoff
     pad = 2.0 * index.dev + 1e-9 * (index.scale + rmax)
     ftol = 1e-9 * (index.scale + rmax)
-    slo, shi = _shift_bounds(index, rmax, pad)
+    slo, shi = _image_bounds(index, rmax, pad)
     sdim, shifts, dtype = _shift_codes(slo, shi)
     zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
     nblk = int(np.prod(index.nb))
@@ -756,7 +759,48 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     m = int(offs[-1])
     rowptr = np.zeros(n + 1, np.int64)
     np.cumsum(rowcount, out=rowptr[1:])
-    return PairList(index.order, rowptr, nbr[:m], code[:m], shifts, zero_code)
+    images = np.ascontiguousarray(index.MS[index.slot_atom >= 0])
+    return PairList(index.order, rowptr, nbr[:m], code[:m], shifts, images,
+                    zero_code)
+
+
+@njit(cache=True)
+def _rows_from_pairs(rank_i, rank_j, mcode, n, nbr, code, rowptr):
+    """Counting sort of a half list by row (stable)."""
+    for k in range(rank_i.shape[0]):
+        rowptr[rank_i[k] + 1] += 1
+    for t in range(n):
+        rowptr[t + 1] += rowptr[t]
+    cur = rowptr[:-1].copy()
+    for k in range(rank_i.shape[0]):
+        q = cur[rank_i[k]]
+        cur[rank_i[k]] = q + 1
+        nbr[q] = rank_j[k]
+        code[q] = mcode[k]
+
+
+def pair_list(index, i, j, S):
+    """A :class:`PairList` in the grid order of ``index`` from a half list
+    of atom pairs with cell shifts S (e.g. Boris's template,
+    :func:`ase_mlg.grid.template_pairs`)."""
+    n = index.grid.natoms
+    rank = np.empty(n, np.int64)
+    rank[index.order] = np.arange(n)
+    images = (np.ascontiguousarray(index.MS[index.slot_atom >= 0]) if n
+              else np.zeros((0, 3), np.int64))
+    ri, rj = rank[i], rank[j]
+    m = np.asarray(S, np.int64) - images[rj] + images[ri]
+    slo = m.min(axis=0) if len(m) else np.zeros(3, np.int64)
+    shi = m.max(axis=0) if len(m) else np.zeros(3, np.int64)
+    slo, shi = np.minimum(slo, 0), np.maximum(shi, 0)
+    sdim, shifts, dtype = _shift_codes(slo, shi)
+    mcode = ((m[:, 0] - slo[0]) * sdim[1] + m[:, 1] - slo[1]) * sdim[2] + m[:, 2] - slo[2]
+    zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
+    nbr = np.empty(len(ri), np.int32)
+    code = np.empty(len(ri), dtype)
+    rowptr = np.zeros(n + 1, np.int64)
+    _rows_from_pairs(ri, rj, mcode, n, nbr, code, rowptr)
+    return PairList(index.order, rowptr, nbr, code, shifts, images, zero_code)
 
 
 @njit(cache=True, nogil=True)
@@ -772,8 +816,8 @@ def _count_full(rowptr, nbr, code, zero_code, order, r0, r1, cnt):
 
 
 @njit(cache=True, nogil=True)
-def _write_pairs(rowptr, nbr, code, zero_code, shifts, order, X, cell, r0, r1,
-                 full, cur, out_i, out_j, out_d, out_D, out_S, want_j, want_d,
+def _write_pairs(rowptr, nbr, code, zero_code, shifts, images, order, X, cell,
+                 r0, r1, full, cur, out_i, out_j, out_d, out_D, out_S, want_j, want_d,
                  want_D, want_S):
     """Write the pairs of rows [r0, r1) with D, d, S computed as ASE does.
 
@@ -787,9 +831,9 @@ def _write_pairs(rowptr, nbr, code, zero_code, shifts, order, X, cell, r0, r1,
             u = nbr[p]
             j = order[u]
             k = code[p]
-            S0 = shifts[k, 0]
-            S1_ = shifts[k, 1]
-            S2 = shifts[k, 2]
+            S0 = shifts[k, 0] + images[u, 0] - images[t, 0]
+            S1_ = shifts[k, 1] + images[u, 1] - images[t, 1]
+            S2 = shifts[k, 2] + images[u, 2] - images[t, 2]
             Dx = (X[u, 0] - X[t, 0]) + (
                 S0 * cell[0, 0] + S1_ * cell[1, 0] + S2 * cell[2, 0])
             Dy = (X[u, 1] - X[t, 1]) + (
@@ -902,7 +946,7 @@ def find_pairs(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
             res[q] = out[q] = np.empty(shape, dt)
     _run_chunks(_write_pairs,
                 lambda g: (pl.rowptr, pl.nbr, pl.code, pl.zero_code, pl.shifts,
-                           pl.order, X, index.cell, rows[g], rows[g + 1],
+                           pl.images, pl.order, X, index.cell, rows[g], rows[g + 1],
                            not half, cur[g] if not half else cur, res["i"],
                            out["j"], out["d"], out["D"], out["S"], want["j"],
                            want["d"], want["D"], want["S"]), ngroup, nth)
