@@ -51,6 +51,7 @@ import numpy as np
 from numba import njit, prange
 
 from .geometry import Box, as_positions, cell_change, grid_shape, wrap_origins
+from .parallel import serial_and_parallel
 
 __all__ = ["MLG", "half_template", "template_pairs"]
 
@@ -381,13 +382,11 @@ _CHUNK = 16
 
 # Each pass is compiled twice: threads pay off only on large grids, and on
 # small ones the cost of waking them (tens of launches per MD step) would
-# dominate.  Both give the same answer (independent lines).
-_axis_pass_serial = njit(cache=True)(_axis_pass)
-_axis_pass_parallel = njit(cache=True, parallel=True)(_axis_pass)
-_mark_serial = njit(cache=True)(_mark_disorder)
-_mark_parallel = njit(cache=True, parallel=True)(_mark_disorder)
-_check_serial = njit(cache=True)(_check_touched)
-_check_parallel = njit(cache=True, parallel=True)(_check_touched)
+# dominate.  Both give the same answer (independent lines).  The twins need
+# distinct cache entries (see ase_mlg.parallel).
+_axis_pass_serial, _axis_pass_parallel = serial_and_parallel(_axis_pass)
+_mark_serial, _mark_parallel = serial_and_parallel(_mark_disorder)
+_check_serial, _check_parallel = serial_and_parallel(_check_touched)
 PARALLEL_SITES = 32768
 
 
@@ -559,8 +558,8 @@ def _follow(sites, coords, pos, inverse, heights, periods, scale):
 _FOLLOW_BLOCK = 1024
 
 
-_take_serial, _take_parallel = njit(cache=True)(_take_positions), njit(cache=True, parallel=True)(_take_positions)
-_follow_serial, _follow_parallel = njit(cache=True)(_follow), njit(cache=True, parallel=True)(_follow)
+_take_serial, _take_parallel = serial_and_parallel(_take_positions)
+_follow_serial, _follow_parallel = serial_and_parallel(_follow)
 
 
 # --------------------------------------------------------------------------
@@ -676,8 +675,7 @@ def _template_scan(sites, shape, pbc, offsets, selfinv, sp, sf,
             counts[s] = cnt
 
 
-_template_scan_serial = njit(cache=True)(_template_scan)
-_template_scan_parallel = njit(cache=True, parallel=True)(_template_scan)
+_template_scan_serial, _template_scan_parallel = serial_and_parallel(_template_scan)
 
 
 def template_pairs(grid, width, cutoff):

@@ -342,8 +342,7 @@ def _pair_vectors(positions, i, j, shifts, cell, D, d):
 
 # Threads pay off only on long lists; waking them costs more than a short
 # list.  Both compilations give identical results (independent pairs).
-_pair_vectors_serial = numba.njit(cache=True)(_pair_vectors)
-_pair_vectors_parallel = numba.njit(cache=True, parallel=True)(_pair_vectors)
+_pair_vectors_serial, _pair_vectors_parallel = serial_and_parallel(_pair_vectors)
 
 
 def pair_vectors(positions, i, j, shifts, cell):
