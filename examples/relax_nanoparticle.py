@@ -13,7 +13,7 @@ from ase_mlg import MLGCalculator
 from ase_mlg.potentials import LennardJones
 
 sigma = 3.405
-atoms = Octahedron("Ar", 9, cutoff=0, latticeconstant=1.6 * sigma)
+atoms = Octahedron("Ar", 7, cutoff=0, latticeconstant=1.6 * sigma)
 atoms.rattle(0.1, seed=4)
 atoms.calc = MLGCalculator(LennardJones(sigma=sigma, epsilon=0.0104, rc=3 * sigma, smooth=True))
 e0 = atoms.get_potential_energy()
