@@ -24,7 +24,7 @@ thermalize_momenta(atoms, temperature_K=110, rng=np.random.default_rng(5))
 Stationary(atoms)
 dyn = VelocityVerlet(atoms, 4 * units.fs)
 e = []
-for _ in tqdm(range(100), desc="NVE mixture", unit="x10 steps"):
+for _ in tqdm(range(100), desc="NVE mixture", unit="x10 steps", disable=None):
     dyn.run(10)
     e.append(atoms.get_total_energy() / len(atoms))
 i, j = ase_mlg.neighbor_list("ij", atoms, 5.0)

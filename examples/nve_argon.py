@@ -22,7 +22,7 @@ atoms.calc = MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5, smo
                            skin=1.0)
 dyn = VelocityVerlet(atoms, timestep=5 * units.fs)
 energies = []
-for _ in tqdm(range(200), desc="NVE", unit="x10 steps"):
+for _ in tqdm(range(200), desc="NVE", unit="x10 steps", disable=None):
     dyn.run(10)
     energies.append(atoms.get_total_energy() / len(atoms))
 energies = np.array(energies)

@@ -20,7 +20,7 @@ atoms.calc = MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5), sk
 dyn = Langevin(atoms, 5 * units.fs, temperature_K=100, friction=0.01 / units.fs,
                rng=np.random.default_rng(3))
 temps = []
-for _ in tqdm(range(100), desc="NVT", unit="x10 steps"):
+for _ in tqdm(range(100), desc="NVT", unit="x10 steps", disable=None):
     dyn.run(10)
     temps.append(atoms.get_temperature())
 print(f"temperature over the last half: {np.mean(temps[50:]):.1f} ± {np.std(temps[50:]):.1f} K "
