@@ -7,10 +7,12 @@ run here with all the parameter sets of its ``pytest.mark.parametrize``
 marks.  The functions take no fixtures; a function that asks for one fails
 (it is never skipped silently).
 
-Replaced names: ``neighbor_list``, ``primitive_neighbor_list``,
-``first_neighbors``, ``NeighborList``, ``PrimitiveNeighborList`` and
-``NewPrimitiveNeighborList``.  ``mic`` (a geometry helper the tests use to
-build their reference) stays ASE's.
+Replaced names (where a file imports them): ``neighbor_list``,
+``primitive_neighbor_list``, ``first_neighbors``, ``NeighborList``,
+``PrimitiveNeighborList``, ``NewPrimitiveNeighborList``,
+``get_connectivity_matrix`` and ``build_neighbor_list``, every name of
+``ase.neighborlist`` that builds or reads a list.  ``mic`` (a geometry helper
+the tests use to build their reference) is ASE's in both modules.
 
 Inapplicable tests: none.  Every test function of ``test_neighbor_kernel.py``,
 ``test_neighbor.py`` and ``test_neighbor_initialization.py`` runs; ASE marks
@@ -34,7 +36,8 @@ import ase_mlg.neighborlist as mlg_nl
 FILES = ["test_neighbor_kernel.py", "test_neighbor.py",
          "test_neighbor_initialization.py"]
 REPLACED = ["neighbor_list", "primitive_neighbor_list", "first_neighbors",
-            "NeighborList", "PrimitiveNeighborList", "NewPrimitiveNeighborList"]
+            "NeighborList", "PrimitiveNeighborList", "NewPrimitiveNeighborList",
+            "get_connectivity_matrix", "build_neighbor_list"]
 # tests that cannot apply to ase_mlg, with the reason (keep empty unless a
 # test checks an ASE internal; they are then reported, not silently skipped)
 INAPPLICABLE = {}
@@ -92,7 +95,12 @@ CASES = _cases()
 
 def test_suite_is_complete():
     """Every test function of the ASE files is collected here (guards against
-    a new ASE version adding tests we would silently not run)."""
+    a new ASE version adding tests we would silently not run), and every
+    list-bound name of ase.neighborlist is one we replace."""
+    import ase.neighborlist as ase_nl
+    for name in REPLACED:
+        assert getattr(mlg_nl, name) is not getattr(ase_nl, name)
+    assert mlg_nl.mic is ase_nl.mic
     names = {p.values[1] for p in CASES}
     for fname in FILES:
         mod = _load(fname)
