@@ -1,8 +1,13 @@
 """ase-mlg: Boris's Monotonic Logical Grid for molecular dynamics in ASE.
 
-Public names: :class:`MLG` (the grid), :func:`neighbor_list` and
-:class:`NeighborList` (drop-ins for ``ase.neighborlist``) and
-:class:`MLGCalculator` (pair potentials through the grid).
+Public names: :class:`MLG` (the grid), the list-bound names of
+``ase.neighborlist`` as drop-ins (:func:`neighbor_list`,
+:func:`primitive_neighbor_list`, :class:`NeighborList`,
+:class:`PrimitiveNeighborList`, :class:`NewPrimitiveNeighborList`,
+:func:`first_neighbors`, :func:`get_connectivity_matrix`,
+:func:`build_neighbor_list`; the whole module is
+:mod:`ase_mlg.neighborlist`) and :class:`MLGCalculator` (pair potentials
+through the grid).
 """
 
 import os
