@@ -352,11 +352,18 @@ def d_compress():
     at = ar_liquid(256, seed=12)
     calc = MLGCalculator(lj_pair())
     compare_calc(at, calc, rtol=1e-9)
-    b = calc.stats["grid_builds"]
+    b, lb = calc.stats["grid_builds"], calc.stats["list_builds"]
     at.set_cell(at.cell * 0.9, scale_atoms=True)
     compare_calc(at, calc, rtol=1e-9)
-    assert calc.stats["grid_builds"] == b + 1, "grid not rebuilt after cell change"
-    return "pass (grid rebuilt, E/F/stress == ASE)"
+    # an affine change keeps the grid's order; the pair list is kept only
+    # while 0.9 (rc + skin) > rc, i.e. the skin covers the strain
+    assert calc.stats["grid_builds"] == b, "grid rebuilt after an affine cell change"
+    kept = 0.9 * (calc.potential.cutoff + calc.skin) > calc.potential.cutoff
+    assert calc.stats["list_builds"] == lb + (not kept), "pair list kept/rebuilt wrongly"
+    at.set_cell(at.cell * 0.85, scale_atoms=True)  # beyond the skin now
+    compare_calc(at, calc, rtol=1e-9)
+    return (f"pass (grid kept, list {'kept' if kept else 'rebuilt'} at 10%, "
+            f"E/F/stress == ASE after 10% and 23.5%)")
 
 
 @check("dynamics", "atoms added / removed between calculator calls")
