@@ -63,6 +63,10 @@ def _max_deviation(positions, ref, M):
 
 
 _EYE = np.eye(3)
+_CALCULATOR_KWARGS = {"label", "atoms", "directory"}
+# An atom that moved this many list radii since the list was built, or ten
+# times the cell edges, has been sent flying (an exploding MD run), not moved.
+ABSURD_LISTS = 100.0
 
 
 class MLGCalculator(Calculator):
@@ -128,6 +132,16 @@ class MLGCalculator(Calculator):
         skin = float(skin)
         if not np.isfinite(skin) or skin < 0:
             raise ValueError(f"skin: must be finite and >= 0, got {skin}")
+        unknown = sorted(set(kwargs) - _CALCULATOR_KWARGS)
+        if unknown:
+            # ASE's calculators store unknown keywords as parameters and
+            # ignore them; a neighbour-list hook ignored would be a silent
+            # wrong answer
+            raise TypeError(f"MLGCalculator: unexpected keyword argument(s) "
+                            f"{', '.join(map(repr, unknown))} (the calculator "
+                            f"finds its own pairs on its MLG; parameters go "
+                            f"to the potential)")
+        self._tolerance = tolerance
         Calculator.__init__(self, **kwargs)
         self.potential = potential
         self.template = template
@@ -196,17 +210,36 @@ class MLGCalculator(Calculator):
         under NPT the skin covers displacement and strain together, the
         test LAMMPS and GROMACS apply.
         """
-        if self._list is None or self.skin == 0.0:
+        if self._list is None:
             return False
         ref_cell = self._ref_cell
         if np.array_equal(cell, ref_cell):
-            return _max_deviation(positions, self._ref, _EYE) < 0.5 * self.skin
-        if abs(np.linalg.det(ref_cell)) < 1e-12 * max(np.abs(ref_cell).max(), 1.0) ** 3:
+            M, smin = _EYE, 1.0
+        elif abs(np.linalg.det(ref_cell)) < 1e-12 * max(np.abs(ref_cell).max(), 1.0) ** 3:
             return False
-        M = np.linalg.solve(ref_cell, cell)
-        smin = float(np.linalg.svd(M, compute_uv=False).min())
+        else:
+            M = np.linalg.solve(ref_cell, cell)
+            smin = float(np.linalg.svd(M, compute_uv=False).min())
         umax = _max_deviation(positions, self._ref, np.ascontiguousarray(M))
+        self._check_displacement(positions, M, umax, cell)
+        if self.skin == 0.0:
+            return False
+        if M is _EYE:
+            return umax < 0.5 * self.skin
         return smin * self._rlist - 2.0 * umax > self.potential.cutoff
+
+    def _check_displacement(self, positions, M, umax, cell):
+        limit = ABSURD_LISTS * self._rlist + 10.0 * float(np.linalg.norm(cell, axis=1).sum())
+        if umax <= limit:  # also False for NaN: as_positions named those
+            return
+        u = np.linalg.norm(positions - self._ref @ M, axis=1)
+        bad = np.flatnonzero(u > limit)
+        raise ValueError(
+            f"positions: atom(s) {bad[:10].tolist()}{' ...' if len(bad) > 10 else ''} "
+            f"moved up to {u.max():.3g} Å since the pair list was built (limit "
+            f"{limit:.3g} Å: {ABSURD_LISTS:g} list radii plus ten times the cell edges); "
+            f"an exploding MD run? Check the time step and overlapping atoms in the "
+            f"start.  calc.reset() accepts an unrelated configuration.")
 
     # -- ASE interface ------------------------------------------------------
     def check_state(self, atoms, tol=1e-15):
@@ -270,3 +303,25 @@ class MLGCalculator(Calculator):
             self.results["stress"] = -v / volume
             if "virials_voigt" in res:
                 self.results["stresses"] = -res["virials_voigt"] / volume
+
+    # -- recorded parameters ------------------------------------------------
+    def todict(self):
+        """The calculator's parameters, JSON-serialisable: what .traj, .db
+        and .json files record (ASE calls this)."""
+        if self.auto is not None:
+            template = "auto"
+        else:
+            template = self.template
+        d = {"potential": self.potential.todict(), "template": template,
+             "skin": self.skin}
+        if self._tolerance is not None:
+            d["tolerance"] = self._tolerance
+        if self.grid_kwargs:
+            d["grid_kwargs"] = dict(self.grid_kwargs)
+        return d
+
+    def __repr__(self):
+        d = self.todict()
+        d.pop("potential")
+        rest = ", ".join(f"{k}={v!r}" for k, v in d.items())
+        return f"MLGCalculator({self.potential!r}, {rest})"

@@ -913,10 +913,33 @@ class PairPotential:
             what = f'energy {e}, dE/dr {dedr}'
         return ValueError(f'{where}: non-finite pair energy or force ({what})')
 
+    def todict(self):
+        """The potential as JSON-serialisable data (for ``calc.todict()``,
+        hence .traj, .db and .json files): ``kind`` and its parameters.
+
+        ``LennardJones`` and ``Morse`` record their constructor's
+        arguments; a user pair function is recorded by its module and name,
+        with tables keyed by element pair (``"Ar-Kr"``, or ``"any-any"``).
+        """
+        if hasattr(self, '_args'):
+            return {'kind': type(self).__name__, **self._args}
+        names = (['any'] if self.species is None else list(self.species))
+        table = (lambda a: {f'{names[x]}-{names[y]}': a[x, y].tolist()
+                            for x in range(len(names))
+                            for y in range(x, len(names))})
+        return {'kind': 'PairPotential',
+                'pair': f'{self.pair.__module__}.{self.pair.__qualname__}',
+                'squared': self.squared, 'params': table(self.params),
+                'cutoffs': table(self.cutoffs), 'rmin': table(self.rmin)}
+
     def __repr__(self):
-        species = 'any' if self.species is None else ','.join(self.species)
-        return (f'{type(self).__name__}(pair={self.pair.__name__}, '
-                f'species={species}, cutoff={self.cutoff:g})')
+        d = self.todict()
+        kind = d.pop('kind')
+        if kind == 'PairPotential':
+            species = 'any' if self.species is None else ','.join(self.species)
+            return (f'PairPotential(pair={self.pair.__name__}, '
+                    f'species={species}, cutoff={self.cutoff:g})')
+        return f'{kind}({", ".join(f"{k}={v!r}" for k, v in d.items())})'
 
 
 def _index_arrays(i, j):
@@ -961,6 +984,8 @@ class LennardJones(PairPotential):
             raise ValueError(f'ro ({ro}) must be smaller than rc ({rc})')
         self.sigma, self.epsilon, self.rc, self.ro = sigma, epsilon, rc, ro
         self.smooth = bool(smooth)
+        self._args = dict(sigma=sigma, epsilon=epsilon, rc=rc, ro=ro,
+                          smooth=self.smooth)
         if self.smooth:
             super().__init__(lennard_jones_smooth_r2, [sigma, epsilon, rc, ro],
                              rc, squared=True)
@@ -1001,6 +1026,8 @@ class Morse(PairPotential):
                              f'({rcut2})')
         self.epsilon, self.r0, self.rho0 = epsilon, r0, rho0
         self.rcut1, self.rcut2 = rcut1, rcut2
+        self._args = dict(epsilon=epsilon, r0=r0, rho0=rho0, rcut1=rcut1,
+                          rcut2=rcut2)
         super().__init__(morse, [epsilon, r0, rho0, rcut1 * r0, rcut2 * r0],
                          rcut2 * r0)
 

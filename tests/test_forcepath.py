@@ -1,0 +1,219 @@
+"""The force path (issue 10, issue 12 items 1, 4, 7): grid-ordered fused
+kernel, threads, NPT without rebuilds, LJ at the cutoff, recorded
+parameters, exploding runs."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from ase import Atoms, units
+from ase.build import bulk
+from ase.calculators.lj import LennardJones as AseLJ
+from ase.io import read, write
+from ase.md.nose_hoover_chain import MTKNPT
+from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
+from ase.md.verlet import VelocityVerlet
+
+from ase_mlg import MLGCalculator
+from ase_mlg.potentials import LennardJones, Morse, lennard_jones_mixture
+
+AR = dict(sigma=3.405, epsilon=0.0104, rc=8.5)
+
+
+def argon(n=4, rattle=0.1, seed=0, shuffle=True):
+    atoms = bulk("Ar", "fcc", a=5.72, cubic=True).repeat(n)
+    atoms.rattle(rattle, seed=seed)
+    if shuffle:
+        atoms = atoms[np.random.default_rng(seed).permutation(len(atoms))]
+    return atoms
+
+
+def ase_ref(atoms, **kw):
+    ref = atoms.copy()
+    ref.calc = AseLJ(**{**AR, **kw})
+    return ref.get_forces(), ref.get_stress(), ref.get_potential_energy()
+
+
+def assert_like_ase(atoms, calc, **kw):
+    ours = atoms.copy()
+    ours.calc = calc
+    f, s, e = ase_ref(atoms, **kw)
+    assert ours.get_potential_energy() == pytest.approx(e, rel=1e-11, abs=1e-12)
+    np.testing.assert_allclose(ours.get_forces(), f, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(ours.get_stress(), s, rtol=1e-10, atol=1e-14)
+
+
+# -- LJ pairs exactly at the cutoff (issue 12, item 1) ------------------------
+
+@pytest.mark.parametrize("skin", [0.0, 1.0])
+def test_lj_keeps_pairs_at_exactly_rc_as_ase(skin):
+    one = Atoms("Ar", cell=[1, 1, 1], pbc=True)  # shells exactly at rc = 3
+    ours = one.copy()
+    ours.calc = MLGCalculator(LennardJones(), skin=skin)
+    ref = one.copy()
+    ref.calc = AseLJ()
+    assert ours.get_stress()[0] == pytest.approx(ref.get_stress()[0], rel=1e-12)
+    assert ref.get_stress()[0] == pytest.approx(-16.5857, rel=1e-4)
+    two = Atoms("Ar2", positions=[[0, 0, 0], [3.0, 0, 0]])
+    ours = two.copy()
+    ours.calc = MLGCalculator(LennardJones(), skin=skin)
+    ref = two.copy()
+    ref.calc = AseLJ()
+    f0 = ref.get_forces()
+    assert abs(f0[0, 0]) > 1e-2
+    np.testing.assert_allclose(ours.get_forces(), f0, rtol=1e-12)
+
+
+# -- grid order, threads ------------------------------------------------------
+
+def test_random_index_order_same_answer_as_sorted():
+    atoms = argon(4, shuffle=False)
+    perm = np.random.default_rng(5).permutation(len(atoms))
+    a, b = atoms.copy(), atoms[perm]
+    a.calc = MLGCalculator(LennardJones(**AR))
+    b.calc = MLGCalculator(LennardJones(**AR))
+    np.testing.assert_allclose(b.get_forces(), a.get_forces()[perm], rtol=1e-12, atol=1e-15)
+    assert b.get_potential_energy() == pytest.approx(a.get_potential_energy(), rel=1e-13)
+    assert_like_ase(b, MLGCalculator(LennardJones(**AR)))
+
+
+def _list_args(atoms):
+    from ase_mlg.potentials import shift_vectors
+    calc = MLGCalculator(LennardJones(**AR))
+    atoms = atoms.copy()
+    atoms.calc = calc
+    atoms.get_forces()
+    pl = calc._list
+    X = atoms.positions[pl.order]
+    return calc.potential, (X, calc._types, pl.rowptr, pl.nbr, pl.code,
+                            shift_vectors(pl.shifts, atoms.cell.array), pl.order)
+
+
+def test_chunks_reproducible_and_agree_across_counts():
+    pot, args = _list_args(argon(5))
+    runs = {k: pot.sum_pairs(*args, energies=True, virials=True, threads=k)
+            for k in (1, 2, 3, 7)}
+    again = pot.sum_pairs(*args, energies=True, virials=True, threads=3)
+    for key in ("forces", "energies", "virials_voigt", "virial"):
+        np.testing.assert_array_equal(again[key], runs[3][key])  # same count: same bits
+    assert again["energy"] == runs[3]["energy"]
+    ref = runs[1]
+    scale = np.abs(ref["forces"]).max()
+    for k, r in runs.items():
+        np.testing.assert_allclose(r["forces"], ref["forces"], rtol=0, atol=1e-12 * scale)
+        assert r["energy"] == pytest.approx(ref["energy"], rel=1e-12)
+        np.testing.assert_allclose(r["virial"], ref["virial"], rtol=1e-12)
+    # the threaded kernel (2+ chunks) and the serial one give the same answer
+    assert not np.array_equal(runs[2]["forces"], np.zeros_like(ref["forces"]))
+
+
+def test_thread_counts_agree_in_subprocesses():
+    code = ("import numpy as np, sys; sys.path.insert(0, %r); "
+            "from test_forcepath import argon, AR; "
+            "from ase_mlg import MLGCalculator; from ase_mlg.potentials import LennardJones; "
+            "a = argon(8); a.calc = MLGCalculator(LennardJones(**AR)); "
+            "f = a.get_forces(); a.positions += 0.01; g = a.get_forces(); "
+            "sys.stdout.write(repr([f.tolist(), g.tolist(), a.get_stress().tolist()]))"
+            ) % os.path.dirname(__file__)
+    out = {}
+    for k in ("1", "2"):
+        env = dict(os.environ, NUMBA_NUM_THREADS=k)
+        r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                           text=True, check=True)
+        out[k] = np.array(eval(r.stdout)[0]), np.array(eval(r.stdout)[1])
+    for x, y in zip(out["1"], out["2"]):
+        np.testing.assert_allclose(x, y, rtol=0, atol=1e-12 * np.abs(x).max())
+
+
+# -- NPT without rebuilds (issue 10, item 4) ----------------------------------
+
+def test_npt_keeps_grid_and_list_and_matches_ase():
+    atoms = argon(5, rattle=0.2, seed=1)
+    MaxwellBoltzmannDistribution(atoms, temperature_K=90, rng=np.random.default_rng(2))
+    calc = MLGCalculator(LennardJones(**AR))
+    atoms.calc = calc
+    dyn = MTKNPT(atoms, 5 * units.fs, temperature_K=90, pressure_au=1 * units.bar,
+                 tdamp=100 * units.fs, pdamp=500 * units.fs)
+    v0 = atoms.get_volume()
+    dyn.run(40)
+    assert atoms.get_volume() != v0  # the cell did move
+    assert calc.stats["grid_builds"] == 1
+    assert calc.stats["grid_rebuilds"] == 0
+    assert calc.stats["list_builds"] <= 10
+    assert_like_ase(atoms, calc)
+
+
+@pytest.mark.parametrize("strain", [0.02, 0.15])
+def test_strain_beyond_the_skin_rebuilds_the_list(strain):
+    atoms = argon(4)
+    calc = MLGCalculator(LennardJones(**AR), skin=1.0)
+    atoms.calc = calc
+    atoms.get_forces()
+    rng = np.random.default_rng(3)
+    eps = np.eye(3) + strain * (rng.random((3, 3)) - 0.5)
+    atoms.set_cell(atoms.cell.array @ eps, scale_atoms=True)
+    atoms.get_forces()
+    smin = np.linalg.svd(eps, compute_uv=False).min()
+    kept = smin * (AR["rc"] + 1.0) > AR["rc"]
+    assert calc.stats["list_builds"] == 1 + (not kept)
+    assert calc.stats["grid_builds"] == 1
+    assert_like_ase(atoms, calc)
+
+
+# -- recorded parameters (issue 12, item 4) -----------------------------------
+
+@pytest.mark.parametrize("pot", [LennardJones(**AR), Morse(epsilon=0.3, r0=2.5),
+                                 lennard_jones_mixture({"Ar": 3.4, "Kr": 3.6},
+                                                       {"Ar": 0.01, "Kr": 0.014})])
+def test_todict_is_json_and_reaches_trajectory_files(pot, tmp_path):
+    calc = MLGCalculator(pot, template=7, skin=0.5)
+    d = calc.todict()
+    assert json.loads(json.dumps(d)) == d
+    assert d["template"] == 7 and d["skin"] == 0.5
+    assert d["potential"]["kind"] == type(pot).__name__
+    atoms = argon(2)
+    atoms.numbers[:5] = 36
+    atoms.calc = calc
+    atoms.get_potential_energy()
+    write(tmp_path / "x.traj", atoms)
+    assert read(tmp_path / "x.traj").calc.parameters == d
+    assert repr(calc).startswith(f"MLGCalculator({type(pot).__name__}(")
+
+
+def test_lennard_jones_recorded_by_its_arguments():
+    d = MLGCalculator(LennardJones(**AR)).todict()
+    assert d["potential"] == {"kind": "LennardJones", "sigma": 3.405, "epsilon": 0.0104,
+                              "rc": 8.5, "ro": 0.66 * 8.5, "smooth": False}
+    assert MLGCalculator(LennardJones(), template="auto").todict()["template"] == "auto"
+
+
+def test_unknown_keyword_is_refused():
+    with pytest.raises(TypeError, match="neighbor_list"):
+        MLGCalculator(LennardJones(), neighbor_list=lambda *a: None)
+
+
+# -- an exploding run (issue 12, item 7) ---------------------------------------
+
+def test_exploding_md_stops_with_a_clear_error():
+    atoms = argon(6, rattle=0.05, shuffle=False)
+    atoms.positions[1] = atoms.positions[0] + [0.9, 0.0, 0.0]  # overlap
+    atoms.calc = MLGCalculator(LennardJones(**AR))
+    dyn = VelocityVerlet(atoms, 5 * units.fs)
+    with pytest.raises(ValueError, match=r"atom\(s\) \[0, 1\].*exploding MD run"):
+        dyn.run(20)
+    assert atoms.calc.stats["calls"] < 5
+
+
+def test_unrelated_configuration_after_reset():
+    atoms = argon(3)
+    calc = MLGCalculator(LennardJones(**AR))
+    atoms.calc = calc
+    atoms.get_forces()
+    atoms.positions += 1e5
+    with pytest.raises(ValueError, match="calc.reset"):
+        atoms.get_forces()
+    calc.reset()
+    assert_like_ase(atoms, calc)
