@@ -194,7 +194,6 @@ class MLGCalculator(Calculator):
         self._ref = positions.copy()
         self._ref_cell = atoms.cell.array.copy()
         self._rlist = rlist
-        self._shifted = bool(pl.images.any())
         self._list = pl
         self.stats["list_builds"] += 1
 
@@ -283,13 +282,11 @@ class MLGCalculator(Calculator):
         pl = self._list
         # positions in grid order: neighbours are close in memory whatever
         # the atoms' index order
-        X = positions[pl.order]
-        if self._shifted:
-            X += pl.images @ cell
         res = self.potential.sum_pairs(
-            X, self._types, pl.rowptr, pl.nbr, pl.code,
-            shift_vectors(pl.shifts, cell), pl.order,
-            energies="energies" in properties, virials="stresses" in properties)
+            pl.positions(positions, cell), self._types, pl.rowptr, pl.nbr,
+            pl.code, shift_vectors(pl.shifts, cell), pl.order,
+            energies="energies" in properties, virials="stresses" in properties,
+            virial="stress" in properties or "stresses" in properties)
         self.stats["calls"] += 1
         self.stats["pairs"] += len(pl)
         self.results["energy"] = res["energy"]
@@ -297,10 +294,9 @@ class MLGCalculator(Calculator):
         self.results["forces"] = res["forces"]
         if "energies" in res:
             self.results["energies"] = res["energies"]
-        if atoms.cell.rank == 3:
+        if atoms.cell.rank == 3 and "virial" in res:
             volume = abs(np.linalg.det(cell))
-            v = res["virial"]
-            self.results["stress"] = -v / volume
+            self.results["stress"] = -res["virial"] / volume
             if "virials_voigt" in res:
                 self.results["stresses"] = -res["virials_voigt"] / volume
 

@@ -114,9 +114,11 @@ def _pair_sum(pair, args):
     pair : numba function ``(r, p) -> (e, dE/dr)``
     args : tuple
         ``(squared, X, types, rowptr, nbr, code, svec, params, cut2, rmin2,
-        check_rmin, rows, order, fbuf, ebuf, vbuf, part, forces, energies,
-        virials)`` (one tuple, so that the cached entry points of the
+        check_rmin, want_w, rows, order, fbuf, ebuf, vbuf, part, forces,
+        energies, virials)`` (one tuple, so that the cached entry points of the
         built-in potentials below stay one line each):
+    want_w : bool
+        Accumulate the virial (stress); per-atom virials need it too.
     squared : bool
         ``pair`` takes ``r**2`` and returns ``(e, dE/dr / r)`` instead
         (no square root, one division less: the built-in LJ).
@@ -145,8 +147,8 @@ def _pair_sum(pair, args):
     order (xx, yy, zz, yz, xz, xy), half of each pair to each atom.
     """
     (squared, X, types, rowptr, nbr, code, svec, params, cut2, rmin2,
-     check_rmin, rows, order, fbuf, ebuf, vbuf, part, forces, energies,
-     virials) = args
+     check_rmin, want_w, rows, order, fbuf, ebuf, vbuf, part, forces,
+     energies, virials) = args
     nchunk = rows.shape[0] - 1
     want_e = ebuf.shape[1] > 0
     want_v = vbuf.shape[1] > 0
@@ -208,6 +210,11 @@ def _pair_sum(pair, args):
                 F[u, 0] -= fx
                 F[u, 1] -= fy
                 F[u, 2] -= fz
+                if want_e:
+                    ebuf[c, t] += 0.5 * e
+                    ebuf[c, u] += 0.5 * e
+                if not want_w:  # MD needs no virial: 10% of the loop
+                    continue
                 # central forces give a symmetric virial: six components
                 w0 = fx * dx
                 w1 = fy * dy
@@ -221,9 +228,6 @@ def _pair_sum(pair, args):
                 v3 -= w3
                 v4 -= w4
                 v5 -= w5
-                if want_e:
-                    ebuf[c, t] += 0.5 * e
-                    ebuf[c, u] += 0.5 * e
                 if want_v:
                     for h in range(2):
                         a = t if h == 0 else u
@@ -792,7 +796,7 @@ class PairPotential:
         return res
 
     def sum_pairs(self, X, types, rowptr, nbr, code, svec, order,
-                  energies=False, virials=False, threads=None):
+                  energies=False, virials=False, virial=True, threads=None):
         """Energy, forces and virials over a half list in compressed rows.
 
         The calculator's path (:class:`ase_mlg.query.PairList` in grid
@@ -814,6 +818,9 @@ class PairPotential:
         energies, virials : bool
             Also return per-atom ``energies`` (N,) eV and
             ``virials_voigt`` (N, 6) eV.
+        virial : bool
+            Return the total ``virial``; MD without a barostat needs none
+            (skipping it saves a tenth of the time).
         threads : int, optional
             Chunks (threads); default numba's thread count on long lists,
             1 on short ones.  Same count, same bits.
@@ -840,7 +847,8 @@ class PairPotential:
         e_out = np.empty(n if energies else 0)
         v_out = np.empty((n if virials else 0, 6))
         args = (self.squared, X, types, rowptr, nbr, code, svec, self.params,
-                self._cut2, self._rmin2, self._check_rmin)
+                self._cut2, self._rmin2, self._check_rmin,
+                bool(virial or virials))
         part = np.zeros((nchunk, 9))
         try:
             kernel(args + (rows, order, np.empty((nchunk, n, 3)),
@@ -848,7 +856,7 @@ class PairPotential:
                            np.empty((nchunk, len(v_out), 6)), part,
                            out['forces'], e_out, v_out))
             if part[:, 8].any() or not np.isfinite(part[:, [0, 7]]).all():
-                q, why = _first_bad_pair(self.pair, *args[:-1])
+                q, why = _first_bad_pair(self.pair, *args[:-2])
                 if q < 0:
                     raise ValueError('non-finite total energy or force '
                                      '(overflow of the pair sums)')
@@ -863,7 +871,8 @@ class PairPotential:
             raise self._pair_error(X, types, rowptr, nbr, code, svec, order,
                                    q, _NON_FINITE, err) from None
         out['energy'] = math.fsum(part[:, 0])
-        out['virial'] = part[:, 1:7].sum(axis=0)
+        if virial or virials:
+            out['virial'] = part[:, 1:7].sum(axis=0)
         if energies:
             out['energies'] = e_out
         if virials:

@@ -71,7 +71,9 @@ import os
 
 import numba
 import numpy as np
-from numba import njit
+from numba import njit, prange
+
+from .parallel import serial_and_parallel
 
 __all__ = ["BlockIndex", "PairList", "half_list", "pair_list", "find_pairs", "CUT_SCALAR",
            "CUT_RADII", "CUT_TABLE"]
@@ -590,11 +592,34 @@ class PairList:
     def natoms(self):
         return len(self.order)
 
+    def positions(self, positions, cell):
+        """Positions in row order, each in the image the grid keeps it in
+        (``x[order] + images @ cell``): the ``X`` of the pair kernel, Å."""
+        X = np.empty((len(self.order), 3))
+        n = len(self.order)
+        gather = _gather_threaded if n >= PARALLEL_MIN_ATOMS else _gather_serial
+        gather(positions, self.order, self.images, np.ascontiguousarray(cell, dtype=np.float64), X)
+        return X
+
     @property
     def nbytes(self):
         """Memory held by the list's arrays, bytes."""
         return sum(a.nbytes for a in (self.order, self.rowptr, self.nbr,
                                       self.code, self.shifts, self.images))
+
+
+def _gather_rows(positions, order, images, cell, X):
+    for t in prange(order.shape[0]):
+        a = order[t]
+        m0 = images[t, 0]
+        m1 = images[t, 1]
+        m2 = images[t, 2]
+        for c in range(3):
+            X[t, c] = positions[a, c] + (m0 * cell[0, c] + m1 * cell[1, c]
+                                         + m2 * cell[2, c])
+
+
+_gather_serial, _gather_threaded = serial_and_parallel(_gather_rows)
 
 
 def _shift_codes(slo, shi):
