@@ -49,20 +49,23 @@ def test_demo_md_agrees_with_ase():
 import inspect  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402
-import shutil  # noqa: E402
 
 import pytest  # noqa: E402
 
 import ase_mlg  # noqa: E402
 
 
+def _command():
+    """The installed ``ase-mlg`` script of this Python's environment (the
+    module where there is none, e.g. an uninstalled checkout)."""
+    exe = os.path.join(os.path.dirname(sys.executable), "ase-mlg")
+    return [exe] if os.path.isfile(exe) else [sys.executable, "-m", "ase_mlg.cli"]
+
+
 def _cli(*args, timeout=300):
-    """Run the installed ``ase-mlg`` script (the module where the script is
-    not on PATH), output to pipes: not a terminal."""
-    exe = shutil.which("ase-mlg")
-    cmd = [exe] if exe else [sys.executable, "-m", "ase_mlg.cli"]
-    return subprocess.run(cmd + list(args), capture_output=True, text=True,
-                          timeout=timeout, stdin=subprocess.DEVNULL)
+    """Run ``ase-mlg ARGS`` with output to pipes: not a terminal."""
+    return subprocess.run(_command() + list(args), capture_output=True,
+                          text=True, timeout=timeout, stdin=subprocess.DEVNULL)
 
 
 def test_bare_command_lists_commands():
@@ -168,8 +171,7 @@ def test_demo_draws_progress_bars_on_a_terminal():
     master, slave = pty.openpty()
     # a terminal 100 columns wide (a fresh pty has size 0 x 0)
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 100, 0, 0))
-    exe = shutil.which("ase-mlg")
-    cmd = ([exe] if exe else [sys.executable, "-m", "ase_mlg.cli"]) + list(DEMO)
+    cmd = _command() + list(DEMO)
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=slave,
                             stderr=slave, close_fds=True)
     os.close(slave)
