@@ -183,7 +183,7 @@ class MLGCalculator(Calculator):
         index = BlockIndex(self.grid)
         n = len(atoms)
         if self.template is None:
-            hint = None if old is None or old.natoms != n else 1.02 * len(old) / max(n, 1)
+            hint = None if old is None or old.natoms != n else len(old) / max(n, 1)
             pl = half_list(index, np.full(n, rlist), cut=rlist,
                            pairs_per_atom=hint, reuse=old)
         else:

@@ -106,7 +106,7 @@ def _gather(sites, coords, g, positions, cell, periods, shape, bs, nb):
     slot_atom = np.full(nslot, -1, dtype=np.int64)
     P = np.full((3, nslot), np.inf)
     G = np.zeros((3, nslot))
-    MS = np.zeros((nslot, 3), dtype=np.int64)
+    MS = np.zeros((nslot, 3), dtype=np.int32)
     BB = np.empty((nblk, 6))
     for b in range(nblk):
         for c in range(3):
@@ -322,23 +322,21 @@ def _block_candidates(cand, qlo, qhi, nb, S1, R2, BB, m0, m1, m2, ncand,
 
 
 @njit(cache=True)
-def _slot_values(slot_atom, positions, radii, types, mode):
-    """Original positions, radius and type of every slot (block order)."""
+def _slot_values(slot_atom, radii, types, mode):
+    """Radius and type of every slot (block order), where the mode uses
+    them (empty otherwise: no memory for what a scalar cutoff ignores)."""
     nslot = slot_atom.shape[0]
-    Q = np.zeros((3, nslot))
-    rs = np.zeros(nslot)
-    ts = np.zeros(nslot, dtype=np.int64)
+    rs = np.zeros(nslot if mode == 1 else 0)
+    ts = np.zeros(nslot if mode == 2 else 0, dtype=np.int64)
     for t in range(nslot):
         a = slot_atom[t]
         if a < 0:
             continue
-        for c in range(3):
-            Q[c, t] = positions[a, c]
         if mode == 1:
             rs[t] = radii[a]
         elif mode == 2:
             ts[t] = types[a]
-    return Q, rs, ts
+    return rs, ts
 
 
 @njit(cache=True)
@@ -421,7 +419,7 @@ def _prepare(A, cand, cf, qlo, qhi, nb, bsz, slot_atom, BB, R2, S1, glob,
 
 
 @njit(cache=True, nogil=True)
-def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, Q, G, MS, BB, R2, S1,
+def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, pos, G, MS, BB, R2, S1,
           glob, natom_blk, periods, cell, pad, ftol, rat, mode, cut, rs, ts,
           table, self_interaction, slo, sdim, out_j, out_c, lo, cap, rowcount):
     """Half scan of blocks ``[b0, b1)``: every unordered pair
@@ -430,7 +428,7 @@ def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, Q, G, MS, BB, R2, S1,
     Candidates are tested on positions gathered in block order (``P``, in
     the frame of the stored coordinates); a pair whose fast distance is
     farther than ``ftol`` from its cutoff is decided by it, the others on
-    ``D = q[j] - q[i] + S @ cell`` from the original positions ``Q``, as
+    ``D = x[j] - x[i] + S @ cell`` from the original positions ``pos``, as
     ASE computes it.  Each pair is kept from the side whose (block, image,
     slot) comes first: candidate blocks ``B >= A``, and for ``B == A`` the
     non-negative images and slots ``u >= t``.
@@ -474,8 +472,8 @@ def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, Q, G, MS, BB, R2, S1,
             px = P[0, t]
             py = P[1, t]
             pz = P[2, t]
-            ra = rs[t]
-            ta = ts[t]
+            ra = rs[t] if mode == 1 else 0.0
+            ta = ts[t] if mode == 2 else 0
             n = 0
             for c in range(ncand):
                 # branch-free box test, one branch
@@ -527,11 +525,12 @@ def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, Q, G, MS, BB, R2, S1,
                     lo_ = rc - ftol
                     if lo_ <= 0.0 or d2f >= lo_ * lo_:
                         # as ASE: positions[j] - positions[i] + S @ cell
-                        Dx = (Q[0, u] - Q[0, t]) + (
+                        a_u = slot_atom[u]  # rare: pairs near the cutoff
+                        Dx = (pos[a_u, 0] - pos[a, 0]) + (
                             S0 * cell[0, 0] + S1_ * cell[1, 0] + S2 * cell[2, 0])
-                        Dy = (Q[1, u] - Q[1, t]) + (
+                        Dy = (pos[a_u, 1] - pos[a, 1]) + (
                             S0 * cell[0, 1] + S1_ * cell[1, 1] + S2 * cell[2, 1])
-                        Dz = (Q[2, u] - Q[2, t]) + (
+                        Dz = (pos[a_u, 2] - pos[a, 2]) + (
                             S0 * cell[0, 2] + S1_ * cell[1, 2] + S2 * cell[2, 2])
                         if not np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz) < rc:
                             continue
@@ -716,8 +715,8 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
         sdim, shifts, dtype = _shift_codes(np.zeros(3, np.int64), np.zeros(3, np.int64))
         return PairList(np.zeros(0, np.int64), np.zeros(1, np.int64),
                         np.zeros(0, np.int32), np.zeros(0, dtype), shifts,
-                        np.zeros((0, 3), np.int64), 0)
-    Q, rs, ts = _slot_values(index.slot_atom, index.positions, radii, types, int(mode))
+                        np.zeros((0, 3), np.int32), 0)
+    rs, ts = _slot_values(index.slot_atom, radii, types, int(mode))
     rmax = float(rat.max())
     # every periodic image within rmax is visited: refuse a cutoff that
     # would need more images than any computer can list, instead of hanging
@@ -744,15 +743,19 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     nchunk = min(nblk, 1 if nth == 1 else 8 * nth)
     bounds = np.linspace(0, nblk, nchunk + 1).astype(np.int64)
     atoms_in = np.add.reduceat(index.natom_blk, bounds[:-1]) if nblk else np.zeros(0)
+    # room for the pairs: a short guess costs a second scan into room of
+    # the exact size, a long one memory (peak memory matters at 10^6 atoms)
+    margin = 1.03
     if pairs_per_atom is None:
-        # a uniform density over the occupied box, generously
+        # a uniform density over the occupied box
         r = min(rmax, 1e6)
         ext = np.maximum(index.glob[3:] - index.glob[:3], r)
-        pairs_per_atom = 1.3 * 0.5 * 4.19 * r ** 3 * n / max(float(np.prod(ext)), 1e-300)
+        pairs_per_atom = 0.5 * 4.19 * r ** 3 * n / max(float(np.prod(ext)), 1e-300)
+        margin = 1.1
     pairs_per_atom = min(float(pairs_per_atom), 0.5 * n * (1 + 8 * 27) + 1)
-    caps = (1.1 * pairs_per_atom * atoms_in).astype(np.int64) + 64
+    caps = (margin * pairs_per_atom * atoms_in).astype(np.int64) + 64
     rowcount = np.zeros(n, np.int64)
-    args = (index.nb, bsz, index.slot_atom, index.slot_rank, index.P, Q,
+    args = (index.nb, bsz, index.slot_atom, index.slot_rank, index.P, index.positions,
             index.G, index.MS, index.BB, index.R2, index.S1, index.glob,
             index.natom_blk, index.periods, index.cell, pad, ftol, rat,
             int(mode), float(cut), rs, ts, table, bool(self_interaction),
@@ -812,7 +815,7 @@ def pair_list(index, i, j, S):
     rank = np.empty(n, np.int64)
     rank[index.order] = np.arange(n)
     images = (np.ascontiguousarray(index.MS[index.slot_atom >= 0]) if n
-              else np.zeros((0, 3), np.int64))
+              else np.zeros((0, 3), np.int32))
     ri, rj = rank[i], rank[j]
     m = np.asarray(S, np.int64) - images[rj] + images[ri]
     slo = m.min(axis=0) if len(m) else np.zeros(3, np.int64)
