@@ -57,8 +57,10 @@ def _max_deviation(positions, ref, M):
             x = positions[a, c] - (ref[a, 0] * M[0, c] + ref[a, 1] * M[1, c]
                                    + ref[a, 2] * M[2, c])
             s += x * x
-        if not s <= worst:  # also NaN: never valid
+        if s > worst:
             worst = s
+        elif not s == s:  # NaN: the list is never valid
+            return np.nan
     return np.sqrt(worst)
 
 
@@ -229,7 +231,7 @@ class MLGCalculator(Calculator):
 
     def _check_displacement(self, positions, M, umax, cell):
         limit = ABSURD_LISTS * self._rlist + 10.0 * float(np.linalg.norm(cell, axis=1).sum())
-        if umax <= limit:  # also False for NaN: as_positions named those
+        if not umax > limit:  # NaN too: the grid update names those atoms
             return
         u = np.linalg.norm(positions - self._ref @ M, axis=1)
         bad = np.flatnonzero(u > limit)
@@ -269,7 +271,12 @@ class MLGCalculator(Calculator):
                   system_changes=all_changes):
         Calculator.calculate(self, atoms, properties, system_changes)
         atoms = self.atoms
-        positions = as_positions(atoms.positions)
+        positions = atoms.positions
+        if not (positions.dtype == np.float64 and positions.ndim == 2
+                and positions.shape[1] == 3 and positions.flags.c_contiguous):
+            positions = as_positions(positions)
+        # NaN/inf positions need no numpy pass here (2 ms at 10^5 atoms):
+        # they fail the list test below, and the grid names the atoms
         cell = atoms.cell.array
         if self._list is not None and (
                 "numbers" in system_changes or "pbc" in system_changes

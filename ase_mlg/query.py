@@ -106,7 +106,7 @@ def _gather(sites, coords, g, positions, cell, periods, shape, bs, nb):
     slot_atom = np.full(nslot, -1, dtype=np.int64)
     P = np.full((3, nslot), np.inf)
     G = np.zeros((3, nslot))
-    MS = np.zeros((nslot, 3), dtype=np.int32)
+    MS = np.zeros((nslot, 3), dtype=np.int64)  # 1e10 cells away: beyond int32
     BB = np.empty((nblk, 6))
     for b in range(nblk):
         for c in range(3):
@@ -715,7 +715,7 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
         sdim, shifts, dtype = _shift_codes(np.zeros(3, np.int64), np.zeros(3, np.int64))
         return PairList(np.zeros(0, np.int64), np.zeros(1, np.int64),
                         np.zeros(0, np.int32), np.zeros(0, dtype), shifts,
-                        np.zeros((0, 3), np.int32), 0)
+                        np.zeros((0, 3), np.int64), 0)
     rs, ts = _slot_values(index.slot_atom, radii, types, int(mode))
     rmax = float(rat.max())
     # every periodic image within rmax is visited: refuse a cutoff that
@@ -815,7 +815,7 @@ def pair_list(index, i, j, S):
     rank = np.empty(n, np.int64)
     rank[index.order] = np.arange(n)
     images = (np.ascontiguousarray(index.MS[index.slot_atom >= 0]) if n
-              else np.zeros((0, 3), np.int32))
+              else np.zeros((0, 3), np.int64))
     ri, rj = rank[i], rank[j]
     m = np.asarray(S, np.int64) - images[rj] + images[ri]
     slo = m.min(axis=0) if len(m) else np.zeros(3, np.int64)
