@@ -62,7 +62,7 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
     say(f"ase-mlg demo: LJ argon liquid, {len(atoms)} atoms, rho* = 0.8, "
         f"box {atoms.cell[0, 0]:.2f} Å, rc = 2.5 sigma = {rc:.3f} Å")
     say("building the grid (loading its compiled kernels; the first run "
-        "compiles them, about 15 s, and caches them on disk)...")
+        "compiles them, some seconds, and caches them on disk)...")
     t0 = time.perf_counter()
     grid = MLG.from_atoms(atoms)
     say(f"grid {grid.shape} ({grid.nholes} holes), built in "
@@ -111,6 +111,8 @@ def md_demo(natoms, steps, seed, say, progress=None):
         return
     if progress is None:
         progress = _is_tty(sys.stderr)
+    say(f"NVE MD with MLGCalculator, {steps} steps: loading the calculator's "
+        "compiled kernels (compiled on a first run, about 15-20 s)...")
     params = dict(sigma=SIGMA_AR, epsilon=0.0104, rc=2.5 * SIGMA_AR)
     # a fresh start: the random walk above lets atoms overlap, which no MD
     # run would start from
@@ -119,8 +121,6 @@ def md_demo(natoms, steps, seed, say, progress=None):
     Stationary(atoms)
     atoms.calc = MLGCalculator(LennardJones(**params, smooth=True), skin=1.0)
     dyn = VelocityVerlet(atoms, 5 * units.fs)
-    say(f"NVE MD with MLGCalculator, {steps} steps: loading the calculator's "
-        "compiled kernels (compiled on a first run, about 10 s)...")
     dyn.run(1)  # loads the compiled kernels
     frames = []
     dyn.attach(lambda: frames.append(atoms.copy()), interval=max(1, steps // 10))
