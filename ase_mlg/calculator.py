@@ -216,6 +216,8 @@ class MLGCalculator(Calculator):
         ref_cell = self._ref_cell
         if np.array_equal(cell, ref_cell):
             M, smin = _EYE, 1.0
+        elif self.auto is not None:
+            return False  # template="auto" re-checks its width when the cell changes
         elif abs(np.linalg.det(ref_cell)) < 1e-12 * max(np.abs(ref_cell).max(), 1.0) ** 3:
             return False
         else:

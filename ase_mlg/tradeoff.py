@@ -240,9 +240,10 @@ class AutoTemplate:
         Candidate widths, tried in ascending order.
     check_every : int
         Pair-list builds between checks (K).  A check also runs on the first
-        build, and whenever the calculator hands over a new grid (cell, pbc
-        or number of atoms changed) or the grid was rebuilt (sweep cap or
-        periodic phase lag).
+        build, whenever the calculator hands over a new grid (pbc or number
+        of atoms changed), the cell changed (NPT: the grid is kept, the
+        density is not) or the grid was rebuilt (sweep cap or periodic
+        phase lag).
 
     Attributes
     ----------
@@ -251,7 +252,8 @@ class AutoTemplate:
         tolerance, e.g. a cutoff that needs several images of a pair).
     history : list of dict
         One record per check: ``build`` (list-build count), ``width``,
-        ``reason`` ("first", "every K", "new grid", "grid rebuilt"),
+        ``reason`` ("first", "every K", "new grid", "cell changed",
+        "grid rebuilt"),
         ``tried`` (widths measured) and the measured ``missed_fraction`` /
         ``force_rms`` of the chosen width.
 
@@ -286,6 +288,7 @@ class AutoTemplate:
         self._builds = 0
         self._since_check = 0
         self._grid = None
+        self._cell = None
         self._grid_rebuilds = None
         self._ref, self._ref_key = None, None
 
@@ -294,6 +297,8 @@ class AutoTemplate:
             return "first"
         if grid is not self._grid:
             return "new grid"
+        if not np.array_equal(grid.box.cell, self._cell):
+            return "cell changed"
         if grid.stats["rebuilds"] != self._grid_rebuilds:
             return "grid rebuilt"
         if self._since_check >= self.check_every:
@@ -383,6 +388,7 @@ class AutoTemplate:
         self.history.append({"build": self._builds, "width": chosen,
                              "reason": reason, "tried": tried, **rec})
         self._grid, self._grid_rebuilds = grid, grid.stats["rebuilds"]
+        self._cell = grid.box.cell.copy()
         self._since_check = 1
         self._ref, self._ref_key = None, None  # release the reference list
         return chosen
