@@ -151,6 +151,7 @@ class MLGCalculator(Calculator):
         self.grid_kwargs = dict(grid_kwargs or {})
         self.grid = None
         self._list = None
+        self._stress_wanted = False
         self.stats = {"calls": 0, "list_builds": 0, "grid_builds": 0,
                       "sweeps": 0, "swaps": 0, "grid_rebuilds": 0,
                       "pairs": 0}
@@ -192,6 +193,8 @@ class MLGCalculator(Calculator):
             i, j, S, _ = template_pairs(self.grid, self.template, rlist)
             pl = pair_list(index, i, j, S)
         del old, index
+        pl.partition(pl.positions(positions, atoms.cell.array),
+                     shift_vectors(pl.shifts, atoms.cell.array), rc)
         self._types = np.ascontiguousarray(self.potential.prepare(atoms.numbers)[0][pl.order])
         self._ref = positions.copy()
         self._ref_cell = atoms.cell.array.copy()
@@ -291,11 +294,14 @@ class MLGCalculator(Calculator):
         pl = self._list
         # positions in grid order: neighbours are close in memory whatever
         # the atoms' index order
+        # the virial costs a tenth of the loop: only for callers that ask
+        # for stress (once asked, always: barostats ask after the forces)
+        self._stress_wanted |= "stress" in properties or "stresses" in properties
         res = self.potential.sum_pairs(
             pl.positions(positions, cell), self._types, pl.rowptr, pl.nbr,
             pl.code, shift_vectors(pl.shifts, cell), pl.order,
             energies="energies" in properties, virials="stresses" in properties,
-            virial="stress" in properties or "stresses" in properties)
+            virial=self._stress_wanted)
         self.stats["calls"] += 1
         self.stats["pairs"] += len(pl)
         self.results["energy"] = res["energy"]
