@@ -576,6 +576,7 @@ class PairList:
     """
 
     def __init__(self, order, rowptr, nbr, code, shifts, images, zero_code):
+        self.chunk_counts = None  # pairs per scan chunk (sizes the next build)
         self.order = order
         self.images = images
         self.rowptr = rowptr
@@ -785,16 +786,21 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     bounds = np.linspace(0, nblk, nchunk + 1).astype(np.int64)
     atoms_in = np.add.reduceat(index.natom_blk, bounds[:-1]) if nblk else np.zeros(0)
     # room for the pairs: a short guess costs a second scan into room of
-    # the exact size, a long one memory (peak memory matters at 10^6 atoms)
-    margin = 1.03
-    if pairs_per_atom is None:
-        # a uniform density over the occupied box
-        r = min(rmax, 1e6)
-        ext = np.maximum(index.glob[3:] - index.glob[:3], r)
-        pairs_per_atom = 0.5 * 4.19 * r ** 3 * n / max(float(np.prod(ext)), 1e-300)
-        margin = 1.1
-    pairs_per_atom = min(float(pairs_per_atom), 0.5 * n * (1 + 8 * 27) + 1)
-    caps = (margin * pairs_per_atom * atoms_in).astype(np.int64) + 64
+    # the exact size, a long one memory (peak memory matters at 10^6
+    # atoms).  In MD the previous list's count per chunk is the guess.
+    prev = None if reuse is None else reuse.chunk_counts
+    if prev is not None and len(prev) == nchunk and reuse.natoms == n:
+        caps = (1.1 * prev).astype(np.int64) + 64
+    else:
+        margin = 1.15
+        if pairs_per_atom is None:
+            # a uniform density over the occupied box
+            r = min(rmax, 1e6)
+            ext = np.maximum(index.glob[3:] - index.glob[:3], r)
+            pairs_per_atom = 0.5 * 4.19 * r ** 3 * n / max(float(np.prod(ext)), 1e-300)
+            margin = 1.1
+        pairs_per_atom = min(float(pairs_per_atom), 0.5 * n * (1 + 8 * 27) + 1)
+        caps = (margin * pairs_per_atom * atoms_in).astype(np.int64) + 64
     rowcount = np.zeros(n, np.int64)
     args = (index.nb, bsz, index.slot_atom, index.slot_rank, index.P, index.positions,
             index.G, index.MS, index.BB, index.R2, index.S1, index.glob,
@@ -829,8 +835,10 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     rowptr = np.zeros(n + 1, np.int64)
     np.cumsum(rowcount, out=rowptr[1:])
     images = np.ascontiguousarray(index.MS[index.slot_atom >= 0])
-    return PairList(index.order, rowptr, nbr[:m], code[:m], shifts, images,
-                    zero_code)
+    pl = PairList(index.order, rowptr, nbr[:m], code[:m], shifts, images,
+                  zero_code)
+    pl.chunk_counts = found
+    return pl
 
 
 @njit(cache=True)
