@@ -609,7 +609,8 @@ class PairList:
         sum 32% faster on 10^4 atoms).  The list stays the same set."""
         n = len(self.order)
         part = _partition_threaded if n >= PARALLEL_MIN_ATOMS else _partition_serial
-        part(self.rowptr, self.nbr, self.code, X, svec, radius * radius)
+        part(self.rowptr, self.nbr, self.code, X, svec, radius * radius,
+             min(max(n, 1), 64))
 
     @property
     def nbytes(self):
@@ -632,32 +633,38 @@ def _gather_rows(positions, order, images, cell, X):
 _gather_serial, _gather_threaded = serial_and_parallel(_gather_rows)
 
 
-def _partition_rows(rowptr, nbr, code, X, svec, r2max):
-    for t in prange(rowptr.shape[0] - 1):
-        lo = rowptr[t]
-        hi = rowptr[t + 1]
-        # stable: the pairs outside go to a scratch tail, then back
-        nout = 0
-        out_j = np.empty(hi - lo, nbr.dtype)
-        out_c = np.empty(hi - lo, code.dtype)
-        w = lo
-        for q in range(lo, hi):
-            u = nbr[q]
-            k = code[q]
-            dx = (X[u, 0] - X[t, 0]) + svec[k, 0]
-            dy = (X[u, 1] - X[t, 1]) + svec[k, 1]
-            dz = (X[u, 2] - X[t, 2]) + svec[k, 2]
-            if dx * dx + dy * dy + dz * dz <= r2max:
-                nbr[w] = u
-                code[w] = k
-                w += 1
-            else:
-                out_j[nout] = u
-                out_c[nout] = k
-                nout += 1
-        for e in range(nout):
-            nbr[w + e] = out_j[e]
-            code[w + e] = out_c[e]
+def _partition_rows(rowptr, nbr, code, X, svec, r2max, nchunk):
+    n = rowptr.shape[0] - 1
+    for ch in prange(nchunk):
+        # one scratch per chunk of rows, not per row
+        t0 = ch * n // nchunk
+        t1 = (ch + 1) * n // nchunk
+        longest = 0
+        for t in range(t0, t1):
+            longest = max(longest, rowptr[t + 1] - rowptr[t])
+        out_j = np.empty(longest, nbr.dtype)
+        out_c = np.empty(longest, code.dtype)
+        for t in range(t0, t1):
+            # stable: the pairs outside go to the scratch, then after
+            nout = 0
+            w = rowptr[t]
+            for q in range(rowptr[t], rowptr[t + 1]):
+                u = nbr[q]
+                k = code[q]
+                dx = (X[u, 0] - X[t, 0]) + svec[k, 0]
+                dy = (X[u, 1] - X[t, 1]) + svec[k, 1]
+                dz = (X[u, 2] - X[t, 2]) + svec[k, 2]
+                if dx * dx + dy * dy + dz * dz <= r2max:
+                    nbr[w] = u
+                    code[w] = k
+                    w += 1
+                else:
+                    out_j[nout] = u
+                    out_c[nout] = k
+                    nout += 1
+            for e in range(nout):
+                nbr[w + e] = out_j[e]
+                code[w + e] = out_c[e]
 
 
 _partition_serial, _partition_threaded = serial_and_parallel(_partition_rows)
