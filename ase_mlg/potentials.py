@@ -74,6 +74,7 @@ from numba import types as nbt
 from numba.core.dispatcher import Dispatcher
 
 from .parallel import serial_and_parallel
+from .query import pair_vector
 
 __all__ = [
     'PairPotential',
@@ -297,10 +298,7 @@ def _first_bad_pair(pair, squared, X, types, rowptr, nbr, code, svec, params,
         ta = types[t]
         for q in range(rowptr[t], rowptr[t + 1]):
             u = nbr[q]
-            k = code[q]
-            dx = (X[u, 0] - X[t, 0]) + svec[k, 0]
-            dy = (X[u, 1] - X[t, 1]) + svec[k, 1]
-            dz = (X[u, 2] - X[t, 2]) + svec[k, 2]
+            dx, dy, dz = pair_vector(X, svec, t, u, code[q])
             r2 = dx * dx + dy * dy + dz * dz
             tb = types[u]
             if r2 > cut2[ta, tb]:
@@ -583,6 +581,10 @@ class PairPotential:
             raise ValueError(f'parameter rows must have length {nparams}, '
                              f'got {self.params.shape[2]}')
         self.cutoff = float(self.cutoffs.max())
+        # the kernel's tables: squared distances
+        self._cut2 = self.cutoffs ** 2
+        self._rmin2 = self.rmin ** 2
+        self._check_rmin = bool((self.rmin > 0).any())
         self._check_pair_function()
 
     def _init_agnostic(self, params, cutoffs, rmin):
@@ -668,9 +670,6 @@ class PairPotential:
     def _check_pair_function(self):
         # Run the kernel on an empty list so a pair function with the wrong
         # signature fails here, with a readable message, not mid-simulation.
-        self._cut2 = self.cutoffs ** 2
-        self._rmin2 = self.rmin ** 2
-        self._check_rmin = bool((self.rmin > 0).any())
         try:
             # the pair function alone first: its return type must be a pair
             self.pair.compile(PAIR_SIGNATURE.args)

@@ -612,11 +612,6 @@ class PairList:
         part(self.rowptr, self.nbr, self.code, X, svec, radius * radius,
              min(max(n, 1), 64))
 
-    @property
-    def nbytes(self):
-        """Memory held by the list's arrays, bytes."""
-        return sum(a.nbytes for a in (self.order, self.rowptr, self.nbr,
-                                      self.code, self.shifts, self.images))
 
 
 def _gather_rows(positions, order, images, cell, X):
@@ -631,6 +626,14 @@ def _gather_rows(positions, order, images, cell, X):
 
 
 _gather_serial, _gather_threaded = serial_and_parallel(_gather_rows)
+
+
+@njit(cache=True, inline="always")
+def pair_vector(X, svec, t, u, k):
+    """``D = X[u] - X[t] + svec[k]`` of one list pair (Å), in ASE's
+    operation order (``x[j] - x[i] + S @ cell``)."""
+    return ((X[u, 0] - X[t, 0]) + svec[k, 0], (X[u, 1] - X[t, 1]) + svec[k, 1],
+            (X[u, 2] - X[t, 2]) + svec[k, 2])
 
 
 def _partition_rows(rowptr, nbr, code, X, svec, r2max, nchunk):
@@ -651,9 +654,7 @@ def _partition_rows(rowptr, nbr, code, X, svec, r2max, nchunk):
             for q in range(rowptr[t], rowptr[t + 1]):
                 u = nbr[q]
                 k = code[q]
-                dx = (X[u, 0] - X[t, 0]) + svec[k, 0]
-                dy = (X[u, 1] - X[t, 1]) + svec[k, 1]
-                dz = (X[u, 2] - X[t, 2]) + svec[k, 2]
+                dx, dy, dz = pair_vector(X, svec, t, u, k)
                 if dx * dx + dy * dy + dz * dz <= r2max:
                     nbr[w] = u
                     code[w] = k
