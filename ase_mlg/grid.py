@@ -51,7 +51,7 @@ import numpy as np
 from numba import njit, prange
 
 from .geometry import Box, as_positions, cell_change, grid_shape, wrap_origins
-from .parallel import serial_and_parallel
+from .parallel import serial_and_parallel, use_threads
 
 __all__ = ["MLG", "half_template", "template_pairs"]
 
@@ -387,7 +387,6 @@ _CHUNK = 16
 _axis_pass_serial, _axis_pass_parallel = serial_and_parallel(_axis_pass)
 _mark_serial, _mark_parallel = serial_and_parallel(_mark_disorder)
 _check_serial, _check_parallel = serial_and_parallel(_check_touched)
-PARALLEL_SITES = 32768
 
 
 @njit(cache=True)
@@ -434,7 +433,7 @@ def _sweeps(sites, coords, shape, periods, cap):
     act = np.zeros(ny * nz + nx * nz + nx * ny, dtype=np.uint8)
     # one byte per site: swapped in the current pass
     touched = np.zeros(sites.size, dtype=np.uint8)
-    if sites.size < PARALLEL_SITES:
+    if not use_threads("sites", sites.size):
         return _sweeps_serial(sites, coords, nx, ny, nz, periods, cap, act, touched)
     _mark_parallel(coords, nx, ny, nz, periods, act)
     nsweep = 0
@@ -718,7 +717,7 @@ def template_pairs(grid, width, cutoff):
     e_S = np.empty((0, 3), np.int64)
     e_D = np.empty((0, 3))
     args = (sites, shape, pbc, offsets, selfinv, sp, sf, grid.box.cell, cutoff)
-    scan = _template_scan_parallel if sites.size >= PARALLEL_SITES else _template_scan_serial
+    scan = _template_scan_parallel if use_threads("sites", sites.size) else _template_scan_serial
     scan(*args, counts, e_i, e_i, e_S, e_D, counts, False)
     start = np.zeros(sites.size, dtype=np.int64)
     np.cumsum(counts[:-1], out=start[1:])
@@ -965,7 +964,7 @@ class MLG:
         # validate against the new cell before any state changes, so a bad
         # call leaves the grid as it was
         pos = np.empty((self.natoms, 3))
-        par = self._sites.size >= PARALLEL_SITES
+        par = use_threads("sites", self._sites.size)
         take = _take_parallel if par else _take_serial
         if take(positions, pos, box.inverse, periods, MAX_CELLS):
             as_positions(positions)  # raises the NaN/inf error

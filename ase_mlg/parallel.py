@@ -1,21 +1,66 @@
-"""How kernels are compiled for one thread and for many.
+"""The package's one threading policy: when a kernel runs on threads, how
+its serial and threaded twins are compiled, and how chunks of work are
+handed to Python threads (docs/design.md §7).
 
-A kernel written once with ``prange`` is compiled twice: serial, for short
-work where waking threads costs more than it saves, and threaded.  The two
-must be compiled from *distinct* Python function objects: numba's on-disk
-cache keys a compiled function by its qualified name, bytecode and
-signature, not by its flags, so ``njit(cache=True)(f)`` and
-``njit(cache=True, parallel=True)(f)`` share one cache entry, and the
+When to thread
+--------------
+Waking threads costs microseconds per launch (TBB: ~6 µs, measured), and
+an MD step launches tens of kernels, so short work runs serially.  The
+break-even point depends on the work per item, so there is one threshold
+per kind of item, all in :data:`THRESHOLDS` and read at call time through
+:func:`use_threads` (a test may patch them):
+
+* ``"sites"``: grid sites of a swap pass, a follow or a template scan;
+* ``"atoms"``: atoms of a query, a gather or a row partition;
+* ``"pairs"``: pairs of a pair-potential sum.
+
+Whatever the thread count, results are reproducible: kernels split work
+into a fixed number of chunks or into independent lines, and reduce in
+chunk order.
+
+Twins
+-----
+A kernel written once with ``prange`` is compiled twice: serial and
+threaded.  The two must be compiled from *distinct* Python function
+objects: numba's on-disk cache keys a compiled function by its qualified
+name, bytecode and signature, not by its flags, so ``njit(cache=True)(f)``
+and ``njit(cache=True, parallel=True)(f)`` share one cache entry, and the
 threaded dispatcher then loads the serial machine code (measured: one
 thread id inside ``prange``) or crashes when the entry was written by the
 other.  :func:`serial_and_parallel` gives the threaded twin its own name.
+
+Python threads
+--------------
+Kernels that fill their own slice of a shared output (the query's chunks
+of blocks, the full list's groups of rows) are serial numba functions that
+release the GIL, run on a small thread pool by :func:`run_chunks`.  The
+pool is dropped in a forked child, which inherits the executor but not its
+threads.
 """
 
+import os
 import types
 
 import numba
 
-__all__ = ["serial_and_parallel"]
+__all__ = ["THRESHOLDS", "use_threads", "threads_for", "serial_and_parallel",
+           "run_chunks"]
+
+#: Work sizes from which kernels run threaded (measured on 2 and 16 cores:
+#: below these, thread hand-offs cost more than they save).
+THRESHOLDS = {"sites": 32768, "atoms": 5000, "pairs": 50_000}
+
+
+def use_threads(kind, size):
+    """Whether work of ``size`` items of ``kind`` (a key of
+    :data:`THRESHOLDS`) runs on threads."""
+    return size >= THRESHOLDS[kind]
+
+
+def threads_for(kind, size):
+    """Number of threads for work of ``size`` items of ``kind``: 1 below
+    the threshold, numba's thread count above it."""
+    return max(1, numba.get_num_threads()) if use_threads(kind, size) else 1
 
 
 def serial_and_parallel(func, cache=True, **flags):
@@ -39,3 +84,29 @@ def serial_and_parallel(func, cache=True, **flags):
     twin.__doc__ = func.__doc__
     return (numba.njit(cache=cache, **flags)(func),
             numba.njit(cache=cache, parallel=True, **flags)(twin))
+
+
+_POOL = [None, 0]
+
+
+def _reset_pool():
+    _POOL[0], _POOL[1] = None, 0
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_reset_pool)
+
+
+def run_chunks(func, args_of, nchunk, nth):
+    """Run ``func(*args_of(ch))`` for every chunk ``ch`` on ``nth`` Python
+    threads (``func`` must release the GIL); results in chunk order."""
+    nth = min(nth, nchunk)
+    if nth == 1:
+        return [func(*args_of(ch)) for ch in range(nchunk)]
+    if _POOL[1] != nth:
+        from concurrent.futures import ThreadPoolExecutor
+        if _POOL[0] is not None:
+            _POOL[0].shutdown(wait=False)
+        _POOL[0] = ThreadPoolExecutor(nth, thread_name_prefix="ase_mlg")
+        _POOL[1] = nth
+    return list(_POOL[0].map(lambda ch: func(*args_of(ch)), range(nchunk)))

@@ -73,7 +73,7 @@ from numba import prange
 from numba import types as nbt
 from numba.core.dispatcher import Dispatcher
 
-from .parallel import serial_and_parallel
+from .parallel import serial_and_parallel, threads_for
 from .query import pair_vector
 
 __all__ = [
@@ -286,7 +286,6 @@ def _pair_sum(pair, args):
 _GENERIC = serial_and_parallel(_pair_sum, cache=False, nogil=True,
                                error_model='numpy')
 _pair_sum_inline = numba.njit(inline='always', error_model='numpy')(_pair_sum)
-PARALLEL_MIN_PAIRS = 50_000
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -833,7 +832,7 @@ class PairPotential:
         n = len(order)
         m = int(rowptr[-1]) if len(rowptr) else 0
         if threads is None:
-            threads = numba.get_num_threads() if m >= PARALLEL_MIN_PAIRS else 1
+            threads = threads_for("pairs", m)
         nchunk = max(1, min(int(threads), n))
         # rows in chunks of about equal pair counts
         rows = np.searchsorted(rowptr, np.linspace(0, m, nchunk + 1)).astype(np.int64)

@@ -67,13 +67,11 @@ it), in a fixed number of row groups with a cursor per group and atom, so
 that the output too is the same for any number of threads.
 """
 
-import os
 
-import numba
 import numpy as np
 from numba import njit, prange
 
-from .parallel import serial_and_parallel
+from .parallel import run_chunks, serial_and_parallel, threads_for, use_threads
 
 __all__ = ["BlockIndex", "PairList", "half_list", "pair_list", "find_pairs", "CUT_SCALAR",
            "CUT_RADII", "CUT_TABLE"]
@@ -597,7 +595,7 @@ class PairList:
         (``x[order] + images @ cell``): the ``X`` of the pair kernel, Å."""
         X = np.empty((len(self.order), 3))
         n = len(self.order)
-        gather = _gather_threaded if n >= PARALLEL_MIN_ATOMS else _gather_serial
+        gather = _gather_threaded if use_threads("atoms", n) else _gather_serial
         gather(positions, self.order, self.images, np.ascontiguousarray(cell, dtype=np.float64), X)
         return X
 
@@ -608,7 +606,7 @@ class PairList:
         pairs inside it first that branch is predicted (measured: the LJ
         sum 32% faster on 10^4 atoms).  The list stays the same set."""
         n = len(self.order)
-        part = _partition_threaded if n >= PARALLEL_MIN_ATOMS else _partition_serial
+        part = _partition_threaded if use_threads("atoms", n) else _partition_serial
         part(self.rowptr, self.nbr, self.code, X, svec, radius * radius,
              min(max(n, 1), 64))
 
@@ -696,39 +694,8 @@ def _image_bounds(index, rmax, pad):
     return slo, shi
 
 
-_POOL = [None, 0]
-
-
-def _reset_pool():
-    # a forked child inherits the executor but not its threads: start anew
-    _POOL[0], _POOL[1] = None, 0
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_reset_pool)
-
 MAX_IMAGES = 1e7  # periodic images per query: 2 rc / h + 1 per axis
-PARALLEL_MIN_ATOMS = 5000  # below this, thread hand-offs cost more than they save
 NGROUP = 8  # row groups of full lists: fixed, so the output never depends on threads
-
-
-def _threads(natoms):
-    return 1 if natoms < PARALLEL_MIN_ATOMS else max(1, numba.get_num_threads())
-
-
-def _run_chunks(func, args_of, nchunk, nth):
-    """Run ``func(*args_of(ch))`` for every chunk on ``nth`` Python threads
-    (the kernels release the GIL); results in chunk order."""
-    nth = min(nth, nchunk)
-    if nth == 1:
-        return [func(*args_of(ch)) for ch in range(nchunk)]
-    if _POOL[1] != nth:
-        from concurrent.futures import ThreadPoolExecutor
-        if _POOL[0] is not None:
-            _POOL[0].shutdown(wait=False)
-        _POOL[0] = ThreadPoolExecutor(nth, thread_name_prefix="ase_mlg")
-        _POOL[1] = nth
-    return list(_POOL[0].map(lambda ch: func(*args_of(ch)), range(nchunk)))
 
 
 def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
@@ -787,7 +754,7 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
     nblk = int(np.prod(index.nb))
     bsz = int(np.prod(index.bs))
-    nth = _threads(n)
+    nth = threads_for("atoms", n)
     # more chunks than threads balances dense and empty regions; the list
     # does not depend on the chunking (rows come out in rank order)
     nchunk = min(nblk, 1 if nth == 1 else 8 * nth)
@@ -825,7 +792,7 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
         else:
             nbr = np.empty(total_cap, np.int32)
             code = np.empty(total_cap, dtype)
-        found = np.array(_run_chunks(
+        found = np.array(run_chunks(
             _scan, lambda ch: (bounds[ch], bounds[ch + 1]) + args
             + (nbr, code, lo[ch], caps[ch], rowcount), nchunk, nth), dtype=np.int64)
         if (found <= caps).all():
@@ -1005,7 +972,7 @@ def find_pairs(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     n = pl.natoms
     want = {q: (q in quantities) for q in "jdDS"}
     X = np.ascontiguousarray(index.positions[pl.order]) if n else np.zeros((0, 3))
-    nth = _threads(n)
+    nth = threads_for("atoms", n)
     ngroup = max(1, min(NGROUP, n))
     rows = np.linspace(0, n, ngroup + 1).astype(np.int64)
     if half:
@@ -1015,7 +982,7 @@ def find_pairs(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
         # every group of rows counts its pairs per atom in its own row of
         # the table, so each group gets its own cursor into every atom
         cur = np.zeros((ngroup, n), dtype=np.int64)
-        _run_chunks(_count_full, lambda g: (pl.rowptr, pl.nbr, pl.code,
+        run_chunks(_count_full, lambda g: (pl.rowptr, pl.nbr, pl.code,
                                             pl.zero_code, pl.order, rows[g],
                                             rows[g + 1], cur[g]), ngroup, nth)
         start = np.zeros(n + 1, dtype=np.int64)
@@ -1029,7 +996,7 @@ def find_pairs(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
                          ("D", (m, 3), np.float64), ("S", (m, 3), np.int64)):
         if want[q]:
             res[q] = out[q] = np.empty(shape, dt)
-    _run_chunks(_write_pairs,
+    run_chunks(_write_pairs,
                 lambda g: (pl.rowptr, pl.nbr, pl.code, pl.zero_code, pl.shifts,
                            pl.images, pl.order, X, index.cell, rows[g], rows[g + 1],
                            not half, cur[g] if not half else cur, res["i"],

@@ -358,6 +358,7 @@ def test_sweeps_equal_boris_phase_order_serial_and_threaded(pbc, monkeypatch):
     phase-by-phase sweeps of Boris 1985 sec. III, on the serial path and on
     the threaded one."""
     from ase_mlg import grid as G
+    from ase_mlg.parallel import THRESHOLDS
     atoms = random_points(6000, 0.8, seed=11)
     grid = MLG(atoms.positions, atoms.cell.array, pbc)
     rng = np.random.default_rng(0)
@@ -370,7 +371,7 @@ def test_sweeps_equal_boris_phase_order_serial_and_threaded(pbc, monkeypatch):
     ref = reference_sweeps(grid._sites, coords, shape, grid._periods, 64)
     assert ref[2] > 2 and ref[3] > 100
     for threshold in (10 ** 9, 1):  # serial, then threaded kernels
-        monkeypatch.setattr(G, "PARALLEL_SITES", threshold)
+        monkeypatch.setitem(THRESHOLDS, "sites", threshold)
         sites, c = grid._sites.copy(), coords.copy()
         nsweep, nswap, ok = G._sweeps(sites, c, shape, grid._periods, 64)
         assert ok and (nsweep, nswap) == ref[2:]
