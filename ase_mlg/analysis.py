@@ -82,8 +82,9 @@ from MDAnalysis.lib import c_distances as _mda_c
 from MDAnalysis.lib import distances as _mda_distances
 from MDAnalysis.lib.mdamath import triclinic_vectors
 
-from .grid import MLG, template_pairs
-from .query import BlockIndex, find_pairs
+from .grid import template_pairs
+from .query import exact_pairs
+from .tracker import GridTracker
 
 __all__ = ["RDF", "RDF_s", "DistributedBackend", "rdf", "CellTooSmall", "VolumeNotDefined",
            "add_rdf_parser", "run_rdf_command"]
@@ -127,42 +128,30 @@ def _check_template(template, name="template"):
 # --------------------------------------------------------------------------
 
 class _PairSource:
-    """Unordered pairs within a cutoff, from one MLG kept across frames.
+    """Unordered pairs within a cutoff, from one MLG kept across frames
+    (:class:`~ase_mlg.tracker.GridTracker`; a new box builds a new grid).
 
-    The grid is moved by ``MLG.update`` (swap sweeps, O(N)) while the number
-    of atoms, the cell and pbc stay the same, and built anew otherwise.
     ``template=None``: every pair with ``d < cutoff``, all images (exact
-    block query); an odd ``template`` W: the pairs Boris's W^3 half template
+    query); an odd ``template`` W: the pairs Boris's W^3 half template
     sees (minimum image, approximate).
     """
 
     def __init__(self, template=None):
         self.template = template
-        self.grid = None
-        self.builds = 0
-        self.updates = 0
+        self.tracker = GridTracker(follow_cell=False)
 
     def __call__(self, positions, cell, pbc, cutoff, want_S=False):
         """Return ``i, j, S`` (S is None unless ``want_S``): each unordered
         pair once, ``i != j`` or an atom with its own periodic image."""
-        g = self.grid
-        pbc = np.broadcast_to(np.asarray(pbc, dtype=bool), (3,))
-        if (g is not None and g.natoms == len(positions)
-                and np.array_equal(g.box.cell, cell) and np.array_equal(g.box.pbc, pbc)):
-            g.update(positions)
-            self.updates += 1
-        else:
-            g = self.grid = MLG(positions, cell, pbc)
-            self.builds += 1
+        g = self.tracker.follow(positions, cell, pbc)
         if self.template is not None:
             i, j, S, _ = template_pairs(g, self.template, cutoff)
             return i, j, (S if want_S else None)
-        res = find_pairs(BlockIndex(g), np.full(g.natoms, cutoff), cut=cutoff,
-                         half=True, quantities="ijS" if want_S else "ij")
-        return res["i"], res["j"], res.get("S")
+        return exact_pairs(g, cutoff, shifts=want_S)
 
     def stats(self):
-        return {"builds": self.builds, "updates": self.updates}
+        st = self.tracker.stats
+        return {"builds": st["builds"], "updates": st["updates"]}
 
 
 def _nchunk(npair):
@@ -787,7 +776,7 @@ class RDF(InterRDF):
             if not (np.array_equal(ix1, self._ix[0]) and np.array_equal(ix2, self._ix[1])):
                 self._setup_weights()
                 if self._pairs is not None:
-                    self._pairs.grid = None  # other atoms: a new grid
+                    self._pairs.tracker.reset()  # other atoms: a new grid
 
     # -- checks -------------------------------------------------------------
     def _convention(self, ts, pos32):
@@ -989,7 +978,7 @@ class RDF_s(InterRDF_s):
                 raise ValueError(f"ags: a group changed size at frame {ts.frame}; "
                                  "InterRDF_s keeps one count per atom pair")
             self._setup_sites()
-            self._pairs.grid = None
+            self._pairs.tracker.reset()
         box32 = _check_box(ts, self.norm)
         pos32 = np.ascontiguousarray(ts.positions[self._union], dtype=np.float32)
         rmin, rmax = (float(x) for x in self.rdf_settings["range"])

@@ -32,18 +32,12 @@ from ase.calculators.calculator import Calculator, all_changes
 from numba import njit
 
 from .geometry import as_positions
-from .grid import MLG, template_pairs
+from .grid import template_pairs
 from .potentials import PairPotential, shift_vectors
-from .query import BlockIndex, find_pairs, half_list, pair_list
+from .query import BlockIndex, half_list, pair_list
+from .tracker import GridTracker
 
 __all__ = ["MLGCalculator"]
-
-
-def _exact_half_pairs(grid, cutoff):
-    """Every pair with d < cutoff once: (i, j, S)."""
-    res = find_pairs(BlockIndex(grid), np.full(grid.natoms, cutoff), cut=cutoff,
-                     half=True, quantities="ijS")
-    return res["i"], res["j"], res["S"]
 
 
 @njit(cache=True)
@@ -149,31 +143,31 @@ class MLGCalculator(Calculator):
         self.template = template
         self.skin = skin
         self.grid_kwargs = dict(grid_kwargs or {})
-        self.grid = None
+        # NPT keeps one grid: it follows the cell (docs/design.md §4)
+        self._tracker = GridTracker(follow_cell=True, **self.grid_kwargs)
         self._list = None
         self._stress_wanted = False
         self.stats = {"calls": 0, "list_builds": 0, "grid_builds": 0,
                       "sweeps": 0, "swaps": 0, "grid_rebuilds": 0,
                       "pairs": 0}
 
+    @property
+    def grid(self):
+        """The :class:`~ase_mlg.grid.MLG` the calculator keeps (None before
+        the first call or after :meth:`reset`)."""
+        return self._tracker.grid
+
     def reset(self):
         Calculator.reset(self)
-        self.grid = None
+        self._tracker.reset()
         self._list = None
 
     # -- the pair list ------------------------------------------------------
     def _update_grid(self, atoms, positions):
-        cell, pbc = atoms.cell.array, atoms.pbc
-        if self.grid is None or self.grid.natoms != len(atoms):
-            self.grid = MLG(positions, cell, pbc, **self.grid_kwargs)
-            self.stats["grid_builds"] += 1
-            return
-        # a changed cell (NPT) keeps the grid's order: the grid rescales
-        # its coordinates and repairs the order by sweeps
-        rec = self.grid.update(positions, cell=cell, pbc=pbc)
-        self.stats["sweeps"] += rec["sweeps"]
-        self.stats["swaps"] += rec["swaps"]
-        self.stats["grid_rebuilds"] += int(rec["rebuilt"])
+        t = self._tracker
+        t.follow(positions, atoms.cell.array, atoms.pbc)
+        self.stats.update(grid_builds=t.stats["builds"], sweeps=t.stats["sweeps"],
+                          swaps=t.stats["swaps"], grid_rebuilds=t.stats["rebuilds"])
 
     def _build_list(self, atoms, positions):
         old, self._list = self._list, None
@@ -288,7 +282,7 @@ class MLGCalculator(Calculator):
                 or len(positions) != self._list.natoms):
             self._list = None
             if "pbc" in system_changes or len(positions) != self.grid.natoms:
-                self.grid = None
+                self._tracker.reset()
         if not self._list_valid(positions, cell):
             self._build_list(atoms, positions)
         pl = self._list

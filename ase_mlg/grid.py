@@ -47,13 +47,15 @@ more than ``max_phase_lag`` spacings.  ``validation/periodic_drift.py``
 measures sweeps per step and template quality over long periodic runs.
 """
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit, prange
 
 from .geometry import Box, as_positions, cell_change, grid_shape, wrap_origins
 from .parallel import serial_and_parallel, use_threads
 
-__all__ = ["MLG", "half_template", "template_pairs"]
+__all__ = ["MLG", "GridView", "half_template", "template_pairs"]
 
 KD, SORT = 0, 1
 _METHODS = {"kd": KD, "sort": SORT}
@@ -760,6 +762,15 @@ def _int_arg(name, value, minimum):
     return int(value)
 
 
+GridView = namedtuple("GridView", "sites coordinates periods shape positions box")
+
+
+def _read_only(a):
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
 class MLG:
     """A Monotonic Logical Grid of atoms (Boris 1985).
 
@@ -877,6 +888,22 @@ class MLG:
         self.stats["rebuilds"] += 1
 
     # -- public views -------------------------------------------------------
+    def view(self):
+        """Read-only views of the grid's own arrays (no copies), for the
+        queries built on it.
+
+        Returns
+        -------
+        GridView
+            ``sites`` (int64, flat, atom at each site or -1), ``coordinates``
+            (float64, (nsites, 3), the stored grid coordinates the order holds
+            on, Å), ``periods`` (float64, 3, cell height on periodic axes,
+            0 on open ones, Å), ``shape``, ``positions`` (Å) and ``box``.
+        """
+        return GridView(_read_only(self._sites), _read_only(self._coords),
+                        _read_only(self._periods), self.shape,
+                        _read_only(self.positions), self.box)
+
     @property
     def sites(self):
         return self._sites.reshape(self.shape)

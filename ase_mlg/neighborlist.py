@@ -57,6 +57,7 @@ from scipy import sparse as _sp
 
 from .geometry import Box, as_positions
 from .grid import MLG
+from .tracker import GridTracker
 from .query import (CUT_RADII, CUT_SCALAR, CUT_TABLE, BlockIndex,
                     find_pairs)
 
@@ -315,8 +316,19 @@ class _MLGPrimitive:
         self.bothways = bothways
         self.use_scaled_positions = use_scaled_positions
         self.nupdates = 0
-        self.grid = None
-        self.nl_grid_updates = 0  # list rebuilds served by grid.update
+        # a new cell builds a new grid (see ase_mlg.tracker)
+        self._tracker = GridTracker(follow_cell=False)
+
+    @property
+    def grid(self):
+        """The :class:`~ase_mlg.grid.MLG` of the last build (None before)."""
+        return self._tracker.grid
+
+    @property
+    def nl_grid_updates(self):
+        """List rebuilds served by ``MLG.update`` (swap sweeps) instead of a
+        new grid."""
+        return self._tracker.stats["updates"]
 
     # -- rebuild rule -------------------------------------------------------
     def _needs_build(self, pbc, cell, coordinates):
@@ -362,20 +374,12 @@ class _MLGPrimitive:
         else:
             positions = coords
         if n == 0:
-            self.grid = None
+            self._tracker.reset()
             i = np.empty(0, int)
             j = np.empty(0, int)
             S = np.empty((0, 3), int)
         else:
-            box = Box(self.cell, pbc)
-            g = self.grid
-            if (g is not None and g.natoms == n
-                    and np.array_equal(g.box.pbc, box.pbc)
-                    and np.array_equal(g.box.full, box.full)):
-                g.update(positions)  # swap sweeps (may rebuild internally)
-                self.nl_grid_updates += 1
-            else:
-                g = self.grid = MLG(positions, self.cell, pbc)
+            g = self._tracker.follow(positions, self.cell, pbc)
             index = BlockIndex(g, BLOCK)
             rmax = float(self.cutoffs.max())
             res = find_pairs(index, self.cutoffs + rmax, CUT_RADII,

@@ -1,6 +1,6 @@
 """The package's one threading policy: when a kernel runs on threads, how
 its serial and threaded twins are compiled, and how chunks of work are
-handed to Python threads (docs/design.md §7).
+handed to Python threads (docs/design.md §8).
 
 When to thread
 --------------

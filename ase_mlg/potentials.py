@@ -2,7 +2,8 @@
 
 A pair potential is a numba-compiled pair function plus a table of parameter
 rows, one row per species pair.  Every potential -- built-in or user-defined --
-is evaluated by the same compiled kernel, :func:`accumulate_pairs`, which
+is evaluated by the same compiled kernel, ``_pair_sum`` (through
+:meth:`PairPotential.sum_pairs` and :meth:`PairPotential.evaluate`), which
 receives the pair function as a first-class function argument.
 
 Units are those of ASE: distances in Å, energies in eV, forces in eV/Å,
@@ -84,7 +85,6 @@ __all__ = [
     'lennard_jones_shifted',
     'lennard_jones_smooth',
     'morse',
-    'accumulate_pairs',
     'PAIR_SIGNATURE',
 ]
 

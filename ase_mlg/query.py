@@ -73,7 +73,7 @@ from numba import njit, prange
 
 from .parallel import run_chunks, serial_and_parallel, threads_for, use_threads
 
-__all__ = ["BlockIndex", "PairList", "half_list", "pair_list", "find_pairs", "CUT_SCALAR",
+__all__ = ["BlockIndex", "PairList", "half_list", "pair_list", "find_pairs", "exact_pairs", "CUT_SCALAR",
            "CUT_RADII", "CUT_TABLE"]
 
 CUT_SCALAR, CUT_RADII, CUT_TABLE = 0, 1, 2
@@ -202,20 +202,21 @@ class BlockIndex:
         shape = np.array(grid.shape, dtype=np.int64)
         bs = np.minimum(bs, np.maximum(shape, 1))
         nb = (shape + bs - 1) // bs
+        view = grid.view()
         self.grid = grid
         self.shape = shape
         self.bs = bs
         self.nb = nb
         self.positions = grid.positions
-        box = grid.box
+        box = view.box
         self.cell = np.ascontiguousarray(box.full, dtype=np.float64)
-        self.periods = np.ascontiguousarray(grid._periods, dtype=np.float64)
+        self.periods = np.array(view.periods, dtype=np.float64)
         n = grid.natoms
         if n:
-            g = np.ascontiguousarray(box.fractional(grid.positions) * box.heights)
+            g = np.ascontiguousarray(box.fractional(view.positions) * box.heights)
             (self.slot_atom, self.P, self.G, self.MS, self.BB, self.R2, self.S1,
              self.glob, self.dev, self.natom_blk) = _gather(
-                grid._sites, grid._coords, g, grid.positions, self.cell,
+                view.sites, view.coordinates, g, grid.positions, self.cell,
                 self.periods, shape, bs, nb)
             # ranks: atoms numbered along the blocks (holes skipped)
             filled = self.slot_atom >= 0
@@ -1011,3 +1012,31 @@ _E_I = np.empty(0, np.int64)
 _E_F = np.empty(0)
 _E_2 = np.empty((0, 3))
 _E_2I = np.empty((0, 3), np.int64)
+
+
+def exact_pairs(grid, cutoff, shifts=True):
+    """Every pair of atoms closer than ``cutoff``, each unordered pair once.
+
+    The exact query of a whole grid at one radius (docs/design.md §6): what
+    the calculator's exact mode, the trade-off's reference and the RDFs
+    count.
+
+    Parameters
+    ----------
+    grid : MLG
+        A grid holding the current positions.
+    cutoff : float
+        Radius (Å); pairs with ``d < cutoff``.
+    shifts : bool
+        Also return the cell shifts ``S`` (``D = x[j] - x[i] + S @ cell``).
+
+    Returns
+    -------
+    i, j : int64 arrays
+    S : int64 array (M, 3), or None without ``shifts``
+        An atom may pair with its own periodic image (``i == j``, S != 0).
+    """
+    res = find_pairs(BlockIndex(grid), np.full(grid.natoms, float(cutoff)),
+                     cut=float(cutoff), half=True,
+                     quantities="ijS" if shifts else "ij")
+    return res["i"], res["j"], res.get("S")

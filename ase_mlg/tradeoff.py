@@ -36,9 +36,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .calculator import _exact_half_pairs
 from .grid import MLG, template_pairs
 from .potentials import pair_vectors
+from .query import exact_pairs
 
 __all__ = ["WIDTHS", "CLOCKS", "DIVERGED", "PairSet", "exact_pair_set", "template_pair_set",
            "compare_pairs", "measure", "TradeoffResult", "plot_tradeoff",
@@ -100,7 +100,7 @@ def exact_pair_set(grid, potential, numbers):
     -------
     PairSet
     """
-    i, j, S = _exact_half_pairs(grid, potential.cutoff)
+    i, j, S = exact_pairs(grid, potential.cutoff)
     D, d = pair_vectors(grid.positions, i, j, S.astype(np.float64),
                         np.ascontiguousarray(grid.box.cell))
     return _interacting(potential, numbers, i, j, S, D, d)
@@ -591,7 +591,7 @@ def measure(atoms, potential, widths=WIDTHS, md_steps=0, timestep_fs=2.0,
         width = None if mode == "exact" else mode
         if width is None:
             found = exact
-            searches[mode] = lambda: _exact_half_pairs(grid, potential.cutoff)
+            searches[mode] = lambda: exact_pairs(grid, potential.cutoff)
         else:
             found = template_pair_set(grid, width, potential, numbers)
             searches[mode] = lambda w=width: template_pairs(grid, w, potential.cutoff)

@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from sweeps_vs_boris import BORIS, simulate  # noqa: E402
 
 from ase_mlg import MLG  # noqa: E402
-from ase_mlg.calculator import _exact_half_pairs  # noqa: E402
+from ase_mlg.query import exact_pairs  # noqa: E402
 from ase_mlg.grid import template_pairs  # noqa: E402
 from ase_mlg.scenes import random_points  # noqa: E402
 
@@ -150,7 +150,7 @@ def construction_statistics(sizes, cutoffs_in_spacings, widths=(5, 7, 9)):
             t_build = float(np.median(times))
             for rc_s in cutoffs_in_spacings:
                 rc = rc_s * spacing
-                true = len(_exact_half_pairs(grid, rc)[0])
+                true = len(exact_pairs(grid, rc)[0])
                 shares = [len(template_pairs(grid, w, rc)[0]) / true for w in widths]
                 rows.append({"N": n, "method": method, "rc": rc_s,
                              "build_us_per_atom": 1e6 * t_build / n,

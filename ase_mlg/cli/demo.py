@@ -1,29 +1,18 @@
-"""The ``ase-mlg`` command line.
+"""``ase-mlg demo``: the package end to end on an embedded LJ argon liquid.
 
-``ase-mlg demo`` runs the package end to end on an embedded LJ argon liquid;
-``ase-mlg rdf`` computes radial distribution functions of trajectories
-(:mod:`ase_mlg.analysis`); ``ase-mlg tradeoff`` measures the template's
-speed/accuracy trade (:mod:`ase_mlg.tradeoff`); bare ``ase-mlg`` lists the
-commands, ``ase-mlg --version`` prints the version.
-Errors in user input print one line and exit with status 2.  Progress bars
-are drawn only when their stream is a terminal.
+Build the MLG, move the atoms and repair the grid (sweeps, template
+quality), run NVE MD with MLGCalculator against ASE's LennardJones, and
+check the trajectory against MDAnalysis and ``ase.neighborlist``.
 """
 
-import argparse
 import sys
 import time
 
 import numpy as np
 
-__all__ = ["main", "demo"]
+from .options import is_tty
 
-
-def _is_tty(stream):
-    """True when ``stream`` is a terminal (progress bars only there)."""
-    try:
-        return bool(stream.isatty())
-    except (AttributeError, ValueError):
-        return False
+__all__ = ["demo"]
 
 
 def _exact_pairs(atoms, rc):
@@ -50,8 +39,8 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
     """
     from tqdm import tqdm
 
-    from .grid import MLG, template_pairs
-    from .scenes import SIGMA_AR, PersistentWalk, lj_liquid
+    from ..grid import MLG, template_pairs
+    from ..scenes import SIGMA_AR, PersistentWalk, lj_liquid
 
     def say(*a):
         print(*a, file=out, flush=True)
@@ -72,7 +61,7 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
     t0 = time.perf_counter()
     say(f"moving the atoms {steps} steps, repairing the grid by swap sweeps...")
     for _ in tqdm(range(steps), desc="moving atoms", unit="step", file=out,
-                  mininterval=0.5, disable=not _is_tty(out)):
+                  mininterval=0.5, disable=not is_tty(out)):
         sweeps.append(grid.update(walk.step())["sweeps"])
     dt = time.perf_counter() - t0
     sweeps = np.array(sweeps)
@@ -88,7 +77,7 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
     for w in (3, 5, 7, 9):
         found = len(template_pairs(grid, w, rc)[0])
         say(f"  W = {w}: {found / true:.4f}")
-    md_demo(len(atoms), md_steps, seed, say, progress=_is_tty(out))
+    md_demo(len(atoms), md_steps, seed, say, progress=is_tty(out))
     return grid
 
 
@@ -103,14 +92,14 @@ def md_demo(natoms, steps, seed, say, progress=None):
     from ase.md.verlet import VelocityVerlet
     from tqdm import tqdm
 
-    from .calculator import MLGCalculator
-    from .potentials import LennardJones
-    from .scenes import SIGMA_AR, lj_liquid
+    from ..calculator import MLGCalculator
+    from ..potentials import LennardJones
+    from ..scenes import SIGMA_AR, lj_liquid
 
     if steps <= 0:
         return
     if progress is None:
-        progress = _is_tty(sys.stderr)
+        progress = is_tty(sys.stderr)
     say(f"NVE MD with MLGCalculator, {steps} steps: loading the calculator's "
         "compiled kernels (compiled on a first run, about 15-20 s)...")
     params = dict(sigma=SIGMA_AR, epsilon=0.0104, rc=2.5 * SIGMA_AR)
@@ -176,8 +165,8 @@ def validate_trajectory(frames, say, progress=False):
     from ase.neighborlist import NeighborList as AseNL
     from MDAnalysis.analysis.rdf import InterRDF
 
-    from .analysis import RDF
-    from .neighborlist import NeighborList
+    from ..analysis import RDF
+    from ..neighborlist import NeighborList
 
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "demo_md.pdb")
@@ -217,92 +206,3 @@ def validate_trajectory(frames, say, progress=False):
     say(f"verdict: {verdict}")
     if verdict != "PASS":
         raise RuntimeError("demo validation failed: see above")
-
-
-def _int_at_least(minimum):
-    def parse(s):
-        try:
-            v = int(s)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {s!r}") from None
-        if v < minimum:
-            raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {v}")
-        return v
-    return parse
-
-
-_positive_int = _int_at_least(1)
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (no usage block): a CLI error is one
-    line on stderr and exit status 2, like every other error here."""
-
-    def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
-def _parser():
-    from . import __version__
-    parser = _Parser(
-        prog="ase-mlg",
-        description="Boris's Monotonic Logical Grid for molecular dynamics in "
-                    "ASE. Run 'ase-mlg COMMAND -h' for a command's options.")
-    parser.add_argument("--version", action="version",
-                        version=f"ase-mlg {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND",
-                                title="commands")
-    p = sub.add_parser(
-        "demo", help="run the package end to end on an embedded argon liquid",
-        description="Build the MLG of an LJ argon liquid, move the atoms and "
-                    "repair the grid (sweeps, template quality), run NVE MD "
-                    "with MLGCalculator against ASE's LennardJones, and check "
-                    "the trajectory against MDAnalysis and ase.neighborlist.")
-    p.add_argument("--natoms", type=_positive_int, default=4000,
-                   help="approximate number of atoms (default %(default)s)")
-    p.add_argument("--steps", type=_positive_int, default=500,
-                   help="steps of liquid-like random motion to repair the grid "
-                        "through (default %(default)s)")
-    p.add_argument("--md-steps", type=_int_at_least(0), default=200,
-                   help="NVE MD steps of 5 fs with MLGCalculator; 0 skips the "
-                        "MD and its checks (default %(default)s)")
-    p.add_argument("--seed", type=int, default=0,
-                   help="random seed of the liquid, the motion and the "
-                        "momenta (default %(default)s)")
-    # the subcommands of the analysis and trade-off modules
-    from .analysis import add_rdf_parser
-    from .tradeoff import add_tradeoff_parser
-    add_rdf_parser(sub)
-    add_tradeoff_parser(sub)
-    return parser
-
-
-def main(argv=None):
-    """The ``ase-mlg`` command; returns the exit status."""
-    parser = _parser()
-    args = parser.parse_args(argv)
-    if args.command is None:  # bare `ase-mlg`: list the commands
-        parser.print_help()
-        return 0
-    from .analysis import run_rdf_command
-    from .tradeoff import run_tradeoff_command
-    import warnings
-    try:
-        # library warnings (e.g. MDAnalysis readers without time steps) are
-        # not errors; a CLI error must stay one line on stderr
-        warnings.simplefilter("ignore", UserWarning)
-        if args.command == "demo":
-            demo(args.natoms, args.steps, args.seed, md_steps=args.md_steps)
-        elif args.command == "rdf":
-            run_rdf_command(args)
-        elif args.command == "tradeoff":
-            run_tradeoff_command(args)
-    except (ValueError, TypeError, OSError) as exc:
-        msg = " ".join(str(exc).split())  # one line, whatever the exception said
-        print(f"ase-mlg {args.command}: error: {msg}", file=sys.stderr)
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,0 +1,87 @@
+"""The ``ase-mlg`` command line.
+
+``ase-mlg demo`` runs the package end to end on an embedded LJ argon liquid
+(:mod:`ase_mlg.cli.demo`); ``ase-mlg rdf`` computes radial distribution
+functions of trajectories (:mod:`ase_mlg.cli.rdf`); ``ase-mlg tradeoff``
+measures the template's speed/accuracy trade (:mod:`ase_mlg.cli.tradeoff`);
+bare ``ase-mlg`` lists the commands, ``ase-mlg --version`` prints the
+version.  Errors in user input print one line and exit with status 2.
+Progress bars are drawn only when their stream is a terminal.
+
+The library never imports this package: command-line code lives here only.
+"""
+
+import argparse
+import sys
+
+from . import rdf as _rdf
+from . import tradeoff as _tradeoff
+from .demo import demo
+from .options import int_at_least, positive_int
+
+__all__ = ["main", "demo"]
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (no usage block): a CLI error is one
+    line on stderr and exit status 2, like every other error here."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _parser():
+    from .. import __version__
+    parser = _Parser(
+        prog="ase-mlg",
+        description="Boris's Monotonic Logical Grid for molecular dynamics in "
+                    "ASE. Run 'ase-mlg COMMAND -h' for a command's options.")
+    parser.add_argument("--version", action="version",
+                        version=f"ase-mlg {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND",
+                                title="commands")
+    p = sub.add_parser(
+        "demo", help="run the package end to end on an embedded argon liquid",
+        description="Build the MLG of an LJ argon liquid, move the atoms and "
+                    "repair the grid (sweeps, template quality), run NVE MD "
+                    "with MLGCalculator against ASE's LennardJones, and check "
+                    "the trajectory against MDAnalysis and ase.neighborlist.")
+    p.add_argument("--natoms", type=positive_int, default=4000,
+                   help="approximate number of atoms (default %(default)s)")
+    p.add_argument("--steps", type=positive_int, default=500,
+                   help="steps of liquid-like random motion to repair the grid "
+                        "through (default %(default)s)")
+    p.add_argument("--md-steps", type=int_at_least(0), default=200,
+                   help="NVE MD steps of 5 fs with MLGCalculator; 0 skips the "
+                        "MD and its checks (default %(default)s)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the liquid, the motion and the "
+                        "momenta (default %(default)s)")
+    _rdf.add_parser(sub)
+    _tradeoff.add_parser(sub)
+    return parser
+
+
+def main(argv=None):
+    """The ``ase-mlg`` command; returns the exit status."""
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.command is None:  # bare `ase-mlg`: list the commands
+        parser.print_help()
+        return 0
+    import warnings
+    try:
+        # library warnings (e.g. MDAnalysis readers without time steps) are
+        # not errors; a CLI error must stay one line on stderr
+        warnings.simplefilter("ignore", UserWarning)
+        if args.command == "demo":
+            demo(args.natoms, args.steps, args.seed, md_steps=args.md_steps)
+        elif args.command == "rdf":
+            _rdf.run(args)
+        elif args.command == "tradeoff":
+            _tradeoff.run(args)
+    except (ValueError, TypeError, OSError) as exc:
+        msg = " ".join(str(exc).split())  # one line, whatever the exception said
+        print(f"ase-mlg {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    return 0

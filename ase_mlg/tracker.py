@@ -1,0 +1,83 @@
+"""One MLG that follows a system across calls: MD steps, list builds,
+trajectory frames.
+
+Every consumer of the grid (the calculator, the neighbour lists, the RDFs)
+asks the same question at each call: can the grid it holds be moved to the
+new positions by swap sweeps (O(N), Boris 1985 §III), or must it be built
+anew (O(N log N))?  :class:`GridTracker` is the one answer:
+
+* no grid yet, or a different number of atoms: build;
+* the same box (:meth:`ase_mlg.geometry.Box.same_as`: cell and pbc equal):
+  ``MLG.update`` (swap sweeps; the grid itself rebuilds at its sweep cap
+  or phase-lag limit);
+* a new cell or pbc: with ``follow_cell=True`` the grid follows the cell
+  (``MLG.update(positions, cell=, pbc=)`` rescales its coordinates, which
+  keeps the order exactly under an affine change, docs/design.md §4);
+  otherwise it is built anew.
+
+The calculator follows the cell (NPT keeps one grid).  The neighbour lists
+and the RDFs build anew on a new cell: their callers change cells between
+unrelated structures as often as along a barostat, and their tests pin it.
+"""
+from .geometry import Box
+from .grid import MLG
+
+__all__ = ["GridTracker"]
+
+
+class GridTracker:
+    """Keeps one :class:`~ase_mlg.grid.MLG` following a system.
+
+    Parameters
+    ----------
+    follow_cell : bool
+        On a change of cell or pbc, let the grid follow it (True) or build
+        a new grid (False).
+    **grid_kwargs
+        Passed to :class:`~ase_mlg.grid.MLG` at every build.
+
+    Attributes
+    ----------
+    grid : MLG or None
+        The grid after the last :meth:`follow` (a read-only view of its
+        arrays is ``grid.view()``).
+    stats : dict
+        Cumulative ``builds`` (new grids), ``updates`` (grids moved by
+        ``MLG.update``), ``sweeps``, ``swaps`` and ``rebuilds`` (rebuilds
+        inside ``MLG.update``: sweep cap, phase lag, cell rank).
+    """
+
+    def __init__(self, follow_cell=True, **grid_kwargs):
+        self.follow_cell = bool(follow_cell)
+        self.grid_kwargs = grid_kwargs
+        self.grid = None
+        self.stats = {"builds": 0, "updates": 0, "sweeps": 0, "swaps": 0,
+                      "rebuilds": 0}
+
+    def follow(self, positions, cell, pbc):
+        """Move the grid to ``positions`` (Å) in ``cell`` with ``pbc``, or
+        build it; returns the grid."""
+        g = self.grid
+        if g is None or g.natoms != len(positions):
+            return self._build(positions, cell, pbc)
+        if self.follow_cell:
+            rec = g.update(positions, cell=cell, pbc=pbc)
+        elif Box(cell, pbc).same_as(g.box):
+            rec = g.update(positions)
+        else:
+            return self._build(positions, cell, pbc)
+        st = self.stats
+        st["updates"] += 1
+        st["sweeps"] += rec["sweeps"]
+        st["swaps"] += rec["swaps"]
+        st["rebuilds"] += int(rec["rebuilt"])
+        return g
+
+    def _build(self, positions, cell, pbc):
+        self.grid = MLG(positions, cell, pbc, **self.grid_kwargs)
+        self.stats["builds"] += 1
+        return self.grid
+
+    def reset(self):
+        """Forget the grid: the next :meth:`follow` builds one."""
+        self.grid = None
