@@ -82,7 +82,7 @@ from MDAnalysis.lib import c_distances as _mda_c
 from MDAnalysis.lib import distances as _mda_distances
 from MDAnalysis.lib.mdamath import triclinic_vectors
 
-from .grid import template_pairs
+from .template import template_pairs
 from .query import exact_pairs
 from .tracker import GridTracker
 

@@ -32,7 +32,7 @@ from ase.calculators.calculator import Calculator, all_changes
 from numba import njit
 
 from .geometry import as_positions
-from .grid import template_pairs
+from .template import template_pairs
 from .potentials import PairPotential, shift_vectors
 from .query import BlockIndex, half_list, pair_list
 from .tracker import GridTracker

@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .grid import MLG, template_pairs
+from .grid import MLG
+from .template import template_pairs
 from .potentials import pair_vectors
 from .query import exact_pairs
 

@@ -9,7 +9,7 @@ from scipy.spatial import cKDTree
 
 from ase_mlg import MLG
 from ase_mlg.geometry import grid_shape
-from ase_mlg.grid import half_template, template_pairs
+from ase_mlg.template import half_template, template_pairs
 from ase_mlg.scenes import PersistentWalk, make_scene, random_points, slab
 
 
@@ -357,7 +357,7 @@ def test_sweeps_equal_boris_phase_order_serial_and_threaded(pbc, monkeypatch):
     """The line-wise passes that skip lines in order give bit for bit the
     phase-by-phase sweeps of Boris 1985 sec. III, on the serial path and on
     the threaded one."""
-    from ase_mlg import grid as G
+    from ase_mlg import sweeps as SW
     from ase_mlg.parallel import THRESHOLDS
     atoms = random_points(6000, 0.8, seed=11)
     grid = MLG(atoms.positions, atoms.cell.array, pbc)
@@ -373,7 +373,7 @@ def test_sweeps_equal_boris_phase_order_serial_and_threaded(pbc, monkeypatch):
     for threshold in (10 ** 9, 1):  # serial, then threaded kernels
         monkeypatch.setitem(THRESHOLDS, "sites", threshold)
         sites, c = grid._sites.copy(), coords.copy()
-        nsweep, nswap, ok = G._sweeps(sites, c, shape, grid._periods, 64)
+        nsweep, nswap, ok = SW.sweep(sites, c, shape, grid._periods, 64)
         assert ok and (nsweep, nswap) == ref[2:]
         assert np.array_equal(sites, ref[0]) and np.array_equal(c, ref[1])
 

@@ -11,7 +11,7 @@ import pytest
 from ase.neighborlist import neighbor_list as ase_neighbor_list
 
 from ase_mlg import MLG, MLGCalculator
-from ase_mlg.grid import template_pairs
+from ase_mlg.template import template_pairs
 from ase_mlg.potentials import LennardJones, lennard_jones_mixture
 from ase_mlg.scenes import SCENES, make_scene
 from ase_mlg.tradeoff import (AutoTemplate, TradeoffResult, add_tradeoff_parser,

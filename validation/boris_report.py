@@ -37,7 +37,7 @@ from sweeps_vs_boris import BORIS, simulate  # noqa: E402
 
 from ase_mlg import MLG  # noqa: E402
 from ase_mlg.query import exact_pairs  # noqa: E402
-from ase_mlg.grid import template_pairs  # noqa: E402
+from ase_mlg.template import template_pairs  # noqa: E402
 from ase_mlg.scenes import random_points  # noqa: E402
 
 HERE = Path(__file__).resolve().parent

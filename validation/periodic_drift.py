@@ -22,7 +22,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ase_mlg import MLG
-from ase_mlg.grid import template_pairs
+from ase_mlg.template import template_pairs
 from ase_mlg.scenes import PersistentWalk, random_points
 
 

@@ -39,7 +39,8 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
     """
     from tqdm import tqdm
 
-    from ..grid import MLG, template_pairs
+    from ..grid import MLG
+    from ..template import template_pairs
     from ..scenes import SIGMA_AR, PersistentWalk, lj_liquid
 
     def say(*a):
