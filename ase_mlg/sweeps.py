@@ -1,8 +1,9 @@
 """Keeping the MLG in order as atoms move: the follow and the swap sweeps.
 
 Maintenance (DESIGN 2.2, Boris 1985 sec. III): after atoms move, odd-even
-swap sweeps along every line of every axis restore the order; each swap
-strictly lowers sum(i*X + j*Y + k*Z), so the sweeps terminate.  A cap on
+swap sweeps along every line of every axis restore the order; an interior
+swap strictly raises sum(i*X + j*Y + k*Z) and leaves sum |g|^2 unchanged, a
+seam swap lowers sum |g|^2, so the sweeps terminate (docs/design.md §4).  A cap on
 sweeps falls back to a rebuild.
 
 Periodic axes (DESIGN 2.4) -- the choice made here
