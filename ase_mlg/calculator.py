@@ -34,7 +34,8 @@ from numba import njit
 from .geometry import as_positions
 from .template import template_pairs
 from .potentials import PairPotential, shift_vectors
-from .query import BlockIndex, half_list, pair_list
+from .blocks import BlockIndex
+from .query import half_list, pair_list
 from .tracker import GridTracker
 
 __all__ = ["MLGCalculator"]

@@ -55,11 +55,11 @@ from ase.neighborlist import (get_distance_indices, get_distance_matrix,
                               mic, natural_cutoffs)
 from scipy import sparse as _sp
 
+from .blocks import BlockIndex
 from .geometry import Box, as_positions
 from .grid import MLG
+from .query import CUT_RADII, CUT_SCALAR, CUT_TABLE, find_pairs
 from .tracker import GridTracker
-from .query import (CUT_RADII, CUT_SCALAR, CUT_TABLE, BlockIndex,
-                    find_pairs)
 
 __all__ = ["neighbor_list", "primitive_neighbor_list", "NeighborList",
            "PrimitiveNeighborList", "NewPrimitiveNeighborList",

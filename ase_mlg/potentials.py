@@ -75,7 +75,7 @@ from numba import types as nbt
 from numba.core.dispatcher import Dispatcher
 
 from .parallel import serial_and_parallel, threads_for
-from .query import pair_vector
+from .pairlist import pair_vector
 
 __all__ = [
     'PairPotential',

@@ -7,7 +7,8 @@ from ase import Atoms
 from ase.neighborlist import neighbor_list as ase_neighbor_list
 
 from ase_mlg import MLG
-from ase_mlg.query import BlockIndex, find_pairs
+from ase_mlg.blocks import BlockIndex
+from ase_mlg.query import find_pairs
 
 from test_grid import check_valid
 

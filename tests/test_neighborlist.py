@@ -24,7 +24,8 @@ from ase.build import bulk
 
 import ase_mlg
 from ase_mlg import neighborlist as nl
-from ase_mlg.query import BlockIndex, find_pairs
+from ase_mlg.blocks import BlockIndex
+from ase_mlg.query import find_pairs
 
 SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow],
                 derandomize=True)

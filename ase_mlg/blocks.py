@@ -1,0 +1,165 @@
+"""The blocked view of an MLG that the exact query scans.
+
+The grid's sites are cut into aligned blocks of ``bx x by x bz`` sites;
+every block, every row of blocks and every slab keeps the bounding box of
+the stored grid coordinates of its sites.  Because the grid is monotone
+these boxes are monotone along each axis, which is what lets the query
+bisect them (the proof is in :mod:`ase_mlg.query` and docs/design.md §6).
+"""
+
+import numpy as np
+from numba import njit
+
+__all__ = ["BlockIndex"]
+
+
+@njit(cache=True)
+def _gather(sites, coords, g, positions, cell, periods, shape, bs, nb):
+    """Slot arrays in block-major order and the block/row/slab boxes.
+
+    Returns ``slot_atom`` (-1: hole or padding), ``P`` (3, nslot): Cartesian
+    position of the image that matches the stored coordinate (+inf for
+    holes), ``G`` (3, nslot) stored grid coordinates, ``MS`` (nslot, 3)
+    integer image of the stored coordinate, ``BB`` (nblk, 6) block boxes
+    (lo0, lo1, lo2, hi0, hi1, hi2), ``R2`` (nbx*nby, 6) row boxes, ``S1``
+    (nbx, 6) slab boxes, the global box ``glob`` (6,), the largest deviation
+    of a stored coordinate from an exact image, and ``natom_blk`` (nblk,).
+    """
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    bx, by, bz = bs[0], bs[1], bs[2]
+    nbx, nby, nbz = nb[0], nb[1], nb[2]
+    bsz = bx * by * bz
+    nblk = nbx * nby * nbz
+    nslot = nblk * bsz
+    slot_atom = np.full(nslot, -1, dtype=np.int64)
+    P = np.full((3, nslot), np.inf)
+    G = np.zeros((3, nslot))
+    MS = np.zeros((nslot, 3), dtype=np.int64)  # 1e10 cells away: beyond int32
+    BB = np.empty((nblk, 6))
+    for b in range(nblk):
+        for c in range(3):
+            BB[b, c] = np.inf
+            BB[b, 3 + c] = -np.inf
+    natom_blk = np.zeros(nblk, dtype=np.int64)
+    dev = 0.0
+    for i in range(nx):
+        I = i // bx
+        ii = i - I * bx
+        for j in range(ny):
+            J = j // by
+            jj = j - J * by
+            for k in range(nz):
+                K = k // bz
+                kk = k - K * bz
+                s = (i * ny + j) * nz + k
+                b = (I * nby + J) * nbz + K
+                t = b * bsz + (ii * by + jj) * bz + kk
+                for c in range(3):
+                    x = coords[s, c]
+                    G[c, t] = x
+                    if x < BB[b, c]:
+                        BB[b, c] = x
+                    if x > BB[b, 3 + c]:
+                        BB[b, 3 + c] = x
+                a = sites[s]
+                slot_atom[t] = a
+                if a < 0:
+                    continue
+                natom_blk[b] += 1
+                m0 = 0
+                m1 = 0
+                m2 = 0
+                for c in range(3):
+                    diff = coords[s, c] - g[a, c]
+                    m = 0.0
+                    if periods[c] > 0.0:
+                        m = np.rint(diff / periods[c])
+                        diff -= m * periods[c]
+                    if abs(diff) > dev:
+                        dev = abs(diff)
+                    if c == 0:
+                        m0 = int(m)
+                    elif c == 1:
+                        m1 = int(m)
+                    else:
+                        m2 = int(m)
+                MS[t, 0] = m0
+                MS[t, 1] = m1
+                MS[t, 2] = m2
+                for c in range(3):
+                    P[c, t] = positions[a, c] + (m0 * cell[0, c] + m1 * cell[1, c]
+                                                 + m2 * cell[2, c])
+    R2 = np.empty((nbx * nby, 6))
+    S1 = np.empty((nbx, 6))
+    glob = np.empty(6)
+    for c in range(3):
+        glob[c] = np.inf
+        glob[3 + c] = -np.inf
+    for I in range(nbx):
+        for c in range(3):
+            S1[I, c] = np.inf
+            S1[I, 3 + c] = -np.inf
+        for J in range(nby):
+            r = I * nby + J
+            for c in range(3):
+                R2[r, c] = np.inf
+                R2[r, 3 + c] = -np.inf
+            for K in range(nbz):
+                b = r * nbz + K
+                for c in range(3):
+                    R2[r, c] = min(R2[r, c], BB[b, c])
+                    R2[r, 3 + c] = max(R2[r, 3 + c], BB[b, 3 + c])
+            for c in range(3):
+                S1[I, c] = min(S1[I, c], R2[r, c])
+                S1[I, 3 + c] = max(S1[I, 3 + c], R2[r, 3 + c])
+        for c in range(3):
+            glob[c] = min(glob[c], S1[I, c])
+            glob[3 + c] = max(glob[3 + c], S1[I, 3 + c])
+    return slot_atom, P, G, MS, BB, R2, S1, glob, dev, natom_blk
+
+
+class BlockIndex:
+    """Blocked view of an MLG for exact range queries (see module doc).
+
+    Built in O(N) from the grid's current state; rebuild it (cheap) after
+    every ``grid.update``.
+    """
+
+    def __init__(self, grid, block=2):
+        bs = np.broadcast_to(np.asarray(block, dtype=np.int64), (3,)).copy()
+        if (bs < 1).any():
+            raise ValueError(f"block: sizes must be >= 1, got {bs.tolist()}")
+        shape = np.array(grid.shape, dtype=np.int64)
+        bs = np.minimum(bs, np.maximum(shape, 1))
+        nb = (shape + bs - 1) // bs
+        view = grid.view()
+        self.grid = grid
+        self.shape = shape
+        self.bs = bs
+        self.nb = nb
+        self.positions = grid.positions
+        box = view.box
+        self.cell = np.ascontiguousarray(box.full, dtype=np.float64)
+        self.periods = np.array(view.periods, dtype=np.float64)
+        n = grid.natoms
+        if n:
+            g = np.ascontiguousarray(box.fractional(view.positions) * box.heights)
+            (self.slot_atom, self.P, self.G, self.MS, self.BB, self.R2, self.S1,
+             self.glob, self.dev, self.natom_blk) = _gather(
+                view.sites, view.coordinates, g, grid.positions, self.cell,
+                self.periods, shape, bs, nb)
+            # ranks: atoms numbered along the blocks (holes skipped)
+            filled = self.slot_atom >= 0
+            self.order = self.slot_atom[filled]
+            self.slot_rank = np.full(len(filled), -1, np.int32)
+            self.slot_rank[filled] = np.arange(n, dtype=np.int32)
+            self.volume = float(abs(np.linalg.det(self.cell)))
+            scale = max(1.0, float(np.abs(self.glob).max()),
+                        float(np.abs(grid.positions).max()),
+                        float(np.abs(self.cell).sum()))
+        else:
+            scale = 1.0
+            self.dev = 0.0
+            self.order = np.zeros(0, np.int64)
+            self.volume = 0.0
+        self.scale = scale

@@ -1,0 +1,306 @@
+"""The half pair list in grid order, and the arrays it gives.
+
+A :class:`PairList` is what the exact query (:mod:`ase_mlg.query`) and
+Boris's template (:mod:`ase_mlg.template`, through
+:func:`ase_mlg.query.pair_list`) produce: each unordered pair once, in
+compressed sparse rows, with atoms numbered by their *rank* along the
+grid's blocks (5 bytes a pair: an int32 neighbour rank and a one-byte image
+code).  Its consumers read it directly: the pair-potential kernel
+(:mod:`ase_mlg.potentials`) sums over the rows, and :meth:`PairList.arrays`
+writes ``ase.neighborlist``'s arrays (docs/design.md §6).
+"""
+
+import numpy as np
+from numba import njit, prange
+
+from .parallel import run_chunks, serial_and_parallel, threads_for, use_threads
+
+__all__ = ["PairList", "pair_vector", "ase_vector"]
+
+NGROUP = 8  # row groups of full lists: fixed, so the output never depends on threads
+
+
+@njit(cache=True, inline="always")
+def ase_vector(pos, j, i, S0, S1, S2, cell):
+    """``D = pos[j] - pos[i] + S @ cell`` (Å), in ASE's operation order, so
+    that distances agree with ``ase.neighborlist`` to the last bit."""
+    return ((pos[j, 0] - pos[i, 0]) + (S0 * cell[0, 0] + S1 * cell[1, 0] + S2 * cell[2, 0]),
+            (pos[j, 1] - pos[i, 1]) + (S0 * cell[0, 1] + S1 * cell[1, 1] + S2 * cell[2, 1]),
+            (pos[j, 2] - pos[i, 2]) + (S0 * cell[0, 2] + S1 * cell[1, 2] + S2 * cell[2, 2]))
+
+
+class PairList:
+    """A half pair list in grid order (compressed sparse rows).
+
+    Atoms are numbered by *rank*: their order along the grid's blocks, so
+    atoms close in space are close in memory whatever the input order.
+
+    Attributes
+    ----------
+    order : int64[N]
+        Atom index of each rank.
+    rowptr : int64[N + 1]
+        Pairs of rank ``t`` are ``rowptr[t]:rowptr[t + 1]``.
+    nbr : int32[M]
+        Rank of the second atom of each pair.
+    code : uint8[M] or int32[M]
+        Index of the pair's image in ``shifts``.
+    shifts : int64[K, 3]
+        Images m.  The pair's cell shift is ``S = m + images[u] -
+        images[t]``: ``D = x[j] - x[i] + S @ cell``.
+    images : int64[N, 3]
+        Image of each rank that the grid keeps it in: ``x + images @ cell``
+        are the positions the grid orders.  An atom that has travelled
+        many cells changes these, never the (few) codes.
+    zero_code : int
+        Code of m = 0.
+    """
+
+    def __init__(self, order, rowptr, nbr, code, shifts, images, zero_code):
+        self.chunk_counts = None  # pairs per scan chunk (sizes the next build)
+        self.order = order
+        self.images = images
+        self.rowptr = rowptr
+        self.nbr = nbr
+        self.code = code
+        self.shifts = shifts
+        self.zero_code = zero_code
+
+    def __len__(self):
+        return int(self.rowptr[-1])
+
+    @property
+    def natoms(self):
+        return len(self.order)
+
+    def positions(self, positions, cell):
+        """Positions in row order, each in the image the grid keeps it in
+        (``x[order] + images @ cell``): the ``X`` of the pair kernel, Å."""
+        X = np.empty((len(self.order), 3))
+        n = len(self.order)
+        gather = _gather_threaded if use_threads("atoms", n) else _gather_serial
+        gather(positions, self.order, self.images, np.ascontiguousarray(cell, dtype=np.float64), X)
+        return X
+
+    def partition(self, X, svec, radius):
+        """Reorder every row so that its pairs within ``radius`` (Å) at
+        positions ``X`` (row order, see :meth:`positions`) come first, in
+        place.  The pair loop tests each pair against the cutoff; with the
+        pairs inside it first that branch is predicted (measured: the LJ
+        sum 32% faster on 10^4 atoms).  The list stays the same set."""
+        n = len(self.order)
+        part = _partition_threaded if use_threads("atoms", n) else _partition_serial
+        part(self.rowptr, self.nbr, self.code, X, svec, radius * radius,
+             min(max(n, 1), 64))
+
+    def arrays(self, positions, cell, half=False, quantities="ijdDS"):
+        """The list as ``ase.neighborlist`` returns it.
+
+        Parameters
+        ----------
+        positions : (N, 3) float64
+            The positions the list was built for, in atom order (Å).
+        cell : (3, 3) float64
+            The cell the shifts refer to (Å).
+        half : bool
+            Each unordered pair once, in grid order; otherwise at both atoms
+            (the mirror is ``(j, i, -D, d, -S)``, bitwise what ASE computes
+            for it), sorted by ``i`` and within one ``i`` in grid order.
+        quantities : str
+            Which of 'jdDS' to fill ('i' is always returned).
+
+        Returns
+        -------
+        dict with keys 'i' and those of 'jdDS' requested: int64 / float64
+        arrays.  The same for any thread count: a fixed number of row
+        groups, each with its own cursor per atom.
+        """
+        pl = self
+        n = pl.natoms
+        want = {q: (q in quantities) for q in "jdDS"}
+        X = np.ascontiguousarray(positions[pl.order]) if n else np.zeros((0, 3))
+        nth = threads_for("atoms", n)
+        ngroup = max(1, min(NGROUP, n))
+        rows = np.linspace(0, n, ngroup + 1).astype(np.int64)
+        if half:
+            cur = np.zeros(0, np.int64)
+            m = len(pl)
+        else:
+            # every group of rows counts its pairs per atom in its own row of
+            # the table, so each group gets its own cursor into every atom
+            cur = np.zeros((ngroup, n), dtype=np.int64)
+            run_chunks(_count_full, lambda g: (pl.rowptr, pl.nbr, pl.code,
+                                                pl.zero_code, pl.order, rows[g],
+                                                rows[g + 1], cur[g]), ngroup, nth)
+            start = np.zeros(n + 1, dtype=np.int64)
+            np.cumsum(cur.sum(axis=0), out=start[1:])
+            np.cumsum(cur, axis=0, out=cur)
+            _cursor(cur, start)
+            m = int(start[-1])
+        res = {"i": np.empty(m, np.int64)}
+        out = {"j": _E_I, "d": _E_F, "D": _E_2, "S": _E_2I}
+        for q, shape, dt in (("j", (m,), np.int64), ("d", (m,), np.float64),
+                             ("D", (m, 3), np.float64), ("S", (m, 3), np.int64)):
+            if want[q]:
+                res[q] = out[q] = np.empty(shape, dt)
+        run_chunks(_write_pairs,
+                    lambda g: (pl.rowptr, pl.nbr, pl.code, pl.zero_code, pl.shifts,
+                               pl.images, pl.order, X, cell, rows[g], rows[g + 1],
+                               not half, cur[g] if not half else cur, res["i"],
+                               out["j"], out["d"], out["D"], out["S"], want["j"],
+                               want["d"], want["D"], want["S"]), ngroup, nth)
+        if not half:
+            _repeat_index(start, res["i"])
+        return res
+
+
+def _gather_rows(positions, order, images, cell, X):
+    for t in prange(order.shape[0]):
+        a = order[t]
+        m0 = images[t, 0]
+        m1 = images[t, 1]
+        m2 = images[t, 2]
+        for c in range(3):
+            X[t, c] = positions[a, c] + (m0 * cell[0, c] + m1 * cell[1, c]
+                                         + m2 * cell[2, c])
+
+
+_gather_serial, _gather_threaded = serial_and_parallel(_gather_rows)
+
+
+@njit(cache=True, inline="always")
+def pair_vector(X, svec, t, u, k):
+    """``D = X[u] - X[t] + svec[k]`` of one list pair (Å), in ASE's
+    operation order (``x[j] - x[i] + S @ cell``)."""
+    return ((X[u, 0] - X[t, 0]) + svec[k, 0], (X[u, 1] - X[t, 1]) + svec[k, 1],
+            (X[u, 2] - X[t, 2]) + svec[k, 2])
+
+
+def _partition_rows(rowptr, nbr, code, X, svec, r2max, nchunk):
+    n = rowptr.shape[0] - 1
+    for ch in prange(nchunk):
+        # one scratch per chunk of rows, not per row
+        t0 = ch * n // nchunk
+        t1 = (ch + 1) * n // nchunk
+        longest = 0
+        for t in range(t0, t1):
+            longest = max(longest, rowptr[t + 1] - rowptr[t])
+        out_j = np.empty(longest, nbr.dtype)
+        out_c = np.empty(longest, code.dtype)
+        for t in range(t0, t1):
+            # stable: the pairs outside go to the scratch, then after
+            nout = 0
+            w = rowptr[t]
+            for q in range(rowptr[t], rowptr[t + 1]):
+                u = nbr[q]
+                k = code[q]
+                dx, dy, dz = pair_vector(X, svec, t, u, k)
+                if dx * dx + dy * dy + dz * dz <= r2max:
+                    nbr[w] = u
+                    code[w] = k
+                    w += 1
+                else:
+                    out_j[nout] = u
+                    out_c[nout] = k
+                    nout += 1
+            for e in range(nout):
+                nbr[w + e] = out_j[e]
+                code[w + e] = out_c[e]
+
+
+_partition_serial, _partition_threaded = serial_and_parallel(_partition_rows)
+
+
+@njit(cache=True, nogil=True)
+def _count_full(rowptr, nbr, code, zero_code, order, r0, r1, cnt):
+    """Pairs each atom gets from rows [r0, r1) of a half list written at
+    both atoms (the mirror of a self pair (i, i, 0) is itself)."""
+    for t in range(r0, r1):
+        cnt[order[t]] += rowptr[t + 1] - rowptr[t]
+        for p in range(rowptr[t], rowptr[t + 1]):
+            u = nbr[p]
+            if not (u == t and code[p] == zero_code):
+                cnt[order[u]] += 1
+
+
+@njit(cache=True, nogil=True)
+def _write_pairs(rowptr, nbr, code, zero_code, shifts, images, order, X, cell,
+                 r0, r1, full, cur, out_i, out_j, out_d, out_D, out_S, want_j, want_d,
+                 want_D, want_S):
+    """Write the pairs of rows [r0, r1) with D, d, S computed as ASE does.
+
+    ``full``: each pair at both atoms, at the cursors ``cur[atom]``; the
+    mirror is ``(j, i, -D, d, -S)`` (bitwise what ASE computes for it:
+    IEEE negation is exact).  Otherwise once, at ``rowptr[t]``, with
+    ``out_i``."""
+    for t in range(r0, r1):
+        a = order[t]
+        for p in range(rowptr[t], rowptr[t + 1]):
+            u = nbr[p]
+            j = order[u]
+            k = code[p]
+            S0 = shifts[k, 0] + images[u, 0] - images[t, 0]
+            S1_ = shifts[k, 1] + images[u, 1] - images[t, 1]
+            S2 = shifts[k, 2] + images[u, 2] - images[t, 2]
+            Dx, Dy, Dz = ase_vector(X, u, t, S0, S1_, S2, cell)
+            d = np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz)
+            if full:
+                q = cur[a]
+                cur[a] = q + 1
+            else:
+                q = p
+                out_i[q] = a
+            if want_j:
+                out_j[q] = j
+            if want_d:
+                out_d[q] = d
+            if want_D:
+                out_D[q, 0] = Dx
+                out_D[q, 1] = Dy
+                out_D[q, 2] = Dz
+            if want_S:
+                out_S[q, 0] = S0
+                out_S[q, 1] = S1_
+                out_S[q, 2] = S2
+            if not full or (u == t and k == zero_code):
+                continue
+            q = cur[j]
+            cur[j] = q + 1
+            if want_j:
+                out_j[q] = a
+            if want_d:
+                out_d[q] = d
+            if want_D:
+                out_D[q, 0] = -Dx
+                out_D[q, 1] = -Dy
+                out_D[q, 2] = -Dz
+            if want_S:
+                out_S[q, 0] = -S0
+                out_S[q, 1] = -S1_
+                out_S[q, 2] = -S2
+
+
+@njit(cache=True)
+def _cursor(cur, start):
+    """cur holds inclusive prefix sums over groups; make it exclusive and
+    add the atom's start."""
+    nch, n = cur.shape
+    for a in range(n):
+        prev = 0
+        for ch in range(nch):
+            c = cur[ch, a]
+            cur[ch, a] = start[a] + prev
+            prev = c
+
+
+@njit(cache=True)
+def _repeat_index(start, out_i):
+    for a in range(start.shape[0] - 1):
+        for p in range(start[a], start[a + 1]):
+            out_i[p] = a
+
+
+_E_I = np.empty(0, np.int64)
+_E_F = np.empty(0)
+_E_2 = np.empty((0, 3))
+_E_2I = np.empty((0, 3), np.int64)
