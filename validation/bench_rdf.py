@@ -32,13 +32,14 @@ against serial InterRDF.
 
 Usage::
 
-    PYTHONPATH=. python validation/bench_rdf.py --adk --distributed 1 2 4 --no-sizes
+    python validation/bench_rdf.py --adk --distributed 1 2 4 --no-sizes
 
-    PYTHONPATH=. python validation/bench_rdf.py            # 1e3, 1e4, 1e5
-    PYTHONPATH=. python validation/bench_rdf.py --large    # adds 1e6
+    python validation/bench_rdf.py            # 1e3, 1e4, 1e5
+    python validation/bench_rdf.py --large    # adds 1e6
 """
 
 import argparse
+import importlib
 import os
 import platform
 import statistics
@@ -234,7 +235,7 @@ def main(argv=None):
     # ase_mlg first: it sets OMP_WAIT_POLICY=PASSIVE before numba's OpenMP
     # layer starts (get_num_threads below starts it); spinning idle threads
     # otherwise starve the serial parts on 2 cores for seconds
-    import ase_mlg  # noqa: F401
+    importlib.import_module("ase_mlg")
     import MDAnalysis
     import ase
     import numba

@@ -1,15 +1,19 @@
-"""Boris 1985's statistics reproduced: writes validation/boris.md + PNGs.
+"""Boris 1985's statistics reproduced: writes validation/reports/boris.md + PNGs.
 
-    cd /work/main && PYTHONPATH=. /work/venv/bin/python validation/boris_report.py
+    python validation/boris_report.py                  # the report
+    python validation/boris_report.py --sweeps-only    # section 1 to stdout
 
-(a few minutes on the 2-core machine).  Three measurements:
+(a few minutes on the 2-core machine; ``pip install -e .`` first).  Source:
+J. P. Boris, NRL Memorandum Report 5570 (1985), sections III and IV.A.
+Three measurements:
 
 1. **Swap sweeps per step** (Boris Fig. 3.4): his free-flight test -- 512
    point particles on an 8x8x8 MLG, periodic in x and y, reflecting walls in
    z, regular start, velocity components uniform in [-v, v] -- for
    per-step displacements dl_max = 0.025, 0.1, 0.4 spacings; the frequency
-   distribution of sweeps per step.  The simulation is
-   ``validation/sweeps_vs_boris.py``'s.
+   distribution of sweeps per step.  We count the sweeps that swapped
+   (``MLG.update(...)["sweeps"]``); counting the final sweep that confirms
+   order too adds exactly 1.
 2. **Close uncounters** (Boris Fig. 4.1): in the same test (dl_max = 0.1),
    for every particle, the particles *outside* its 5x5x5 logical template,
    binned by physical distance in shells of 0.1 spacing (Boris's 1 Å shells
@@ -32,16 +36,15 @@ from pathlib import Path
 import numba
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from sweeps_vs_boris import BORIS, simulate  # noqa: E402
+from ase_mlg import MLG
+from ase_mlg.query import exact_pairs
+from ase_mlg.template import template_pairs
+from ase_mlg.scenes import random_points
 
-from ase_mlg import MLG  # noqa: E402
-from ase_mlg.query import exact_pairs  # noqa: E402
-from ase_mlg.template import template_pairs  # noqa: E402
-from ase_mlg.scenes import random_points  # noqa: E402
-
-HERE = Path(__file__).resolve().parent
-COMMAND = "cd /work/main && PYTHONPATH=. /work/venv/bin/python validation/boris_report.py"
+REPORTS = Path(__file__).resolve().parent / "reports"
+COMMAND = "python validation/boris_report.py"
+SOURCE = "J. P. Boris, NRL Memorandum Report 5570 (1985), sections III and IV.A"
+BORIS = {0.025: 2.85, 0.1: 4.0, 0.4: 5.0}  # mean swapping iterations per step
 SHELL = 0.1          # shell thickness, spacings (Boris: 1 Å of a 10 Å spacing)
 RMAX = 7.0           # largest distance binned, spacings
 HALF = 2             # 5x5x5 template: logical offsets -2..2
@@ -50,6 +53,36 @@ HALF = 2             # 5x5x5 template: logical offsets -2..2
 # --------------------------------------------------------------------------
 # 1. sweeps per step (Fig. 3.4)
 # --------------------------------------------------------------------------
+
+def simulate(dl_max, steps, seed, n=8, hole_plane=False):
+    """Boris's free-flight test, one step at a time.
+
+    Yields ``(positions, grid, record)`` after every step: positions in units
+    of the initial spacing (unwrapped in x and y), the MLG that followed
+    them, and its ``update`` record.  ``hole_plane=True`` adds a ninth plane
+    of n^2 holes, as in Boris's second Fig. 4.1 run (his holes move to the
+    mean of their six logical neighbours; ours keep their coordinates and
+    are only moved by swaps).
+    """
+    rng = np.random.default_rng(seed)
+    spacing = 1.0
+    L = n * spacing
+    grid_pts = (np.stack(np.meshgrid(*[np.arange(n)] * 3, indexing="ij"), -1)
+                .reshape(-1, 3) + 0.5) * spacing
+    x = grid_pts.copy()
+    v = rng.uniform(-1, 1, x.shape) * dl_max * spacing
+    shape = (n, n, n + 1) if hole_plane else (n, n, n)
+    grid = MLG(x, [L, L, L], (True, True, False), shape=shape)
+    for _ in range(steps):
+        x = x + v
+        # reflecting walls in z
+        low, high = x[:, 2] < 0, x[:, 2] > L
+        x[low, 2] *= -1
+        x[high, 2] = 2 * L - x[high, 2]
+        v[low | high, 2] *= -1
+        rec = grid.update(x)
+        yield x, grid, rec
+
 
 def sweep_statistics(steps, seeds):
     """Sweeps that swapped, per step, for each dl_max (all seeds pooled)."""
@@ -237,14 +270,20 @@ def main(argv=None):
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--burn-in", type=int, default=100)
     p.add_argument("--sizes", default="512,1000,8000,64000")
-    p.add_argument("--out", default=str(HERE))
+    p.add_argument("--out", default=str(REPORTS),
+                   help="folder of boris.md and boris/*.png (default: %(default)s)")
+    p.add_argument("--sweeps-only", action="store_true",
+                   help="print section 1 (sweeps per step) and write nothing")
     args = p.parse_args(argv)
     numba.set_num_threads(1)
-    out = Path(args.out)
-    (out / "boris").mkdir(parents=True, exist_ok=True)
     t_start = time.time()
 
     sweeps = sweep_statistics(args.steps, args.seeds)
+    if args.sweeps_only:
+        print("\n".join(sweeps_section(sweeps, args, figure=False)))
+        return
+    out = Path(args.out)
+    (out / "boris").mkdir(parents=True, exist_ok=True)
     plot_sweeps(sweeps, out / "boris" / "sweeps.png")
     runs = {"8x8x8, no holes": uncounter_statistics(0.1, args.steps, args.seeds,
                                                     args.burn_in, False),
@@ -261,21 +300,10 @@ def main(argv=None):
     print(md)
 
 
-def report(sweeps, runs, cons, args, elapsed):
+def sweeps_section(sweeps, args, figure=True):
+    """Section 1 of the report (markdown lines): sweeps per step against
+    Boris's Fig. 3.4; ``figure`` links boris/sweeps.png."""
     lines = [
-        "# Boris 1985 reproduced: sweep counts, close uncounters, construction",
-        "",
-        "Generated by `validation/boris_report.py`; regenerate with",
-        "",
-        "```bash",
-        COMMAND,
-        "```",
-        "",
-        f"({elapsed / 60:.1f} min; {args.steps} steps x {args.seeds} seeds per case.) "
-        "Source: J. P. Boris, NRL Memorandum Report 5570 (1985), sections III and "
-        "IV.A (`/work/shared/seeds/000_40ca4c308bbf9a74.txt`). Distances are in "
-        "units of the initial spacing Δ (Boris's Δ = 10 Å).",
-        "",
         "## 1. Swap sweeps per step (Fig. 3.4)",
         "",
         "Boris's free-flight test: 512 point particles, 8x8x8 MLG, periodic in x "
@@ -284,8 +312,10 @@ def report(sweeps, runs, cons, args, elapsed):
         "step. We count the sweeps that swapped (the final sweep that only confirms "
         "order is not counted; counting it adds exactly 1).",
         "",
-        "![sweeps](boris/sweeps.png)",
-        "",
+    ]
+    if figure:
+        lines += ["![sweeps](boris/sweeps.png)", ""]
+    lines += [
         "| dl_max / Δ | Boris mean | ours | difference | "
         + " | ".join(f"P({k})" for k in range(9)) + " | P(≥9) | grid rebuilds |",
         "|---:|---:|---:|---:|" + "---:|" * 10 + "---:|",
@@ -324,6 +354,26 @@ def report(sweeps, runs, cons, args, elapsed):
         "mean about 1 above Boris's, so his \"iterations\" most likely count the "
         "sweeps that swapped.",
         "",
+    ]
+    return lines
+
+
+def report(sweeps, runs, cons, args, elapsed):
+    lines = [
+        "# Boris 1985 reproduced: sweep counts, close uncounters, construction",
+        "",
+        "Generated by `validation/boris_report.py`; regenerate, after "
+        "`pip install -e .` in the checkout, with",
+        "",
+        "```bash",
+        COMMAND,
+        "```",
+        "",
+        f"({elapsed / 60:.1f} min; {args.steps} steps x {args.seeds} seeds per case.) "
+        f"Source: {SOURCE}. Distances are in units of the initial spacing Δ "
+        "(Boris's Δ = 10 Å).",
+        "",
+        *sweeps_section(sweeps, args),
         "## 2. Close uncounters with the 5x5x5 template (Fig. 4.1)",
         "",
         f"Same test at dl_max = 0.1 Δ, first {args.burn_in} steps (regular start) "
