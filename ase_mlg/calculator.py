@@ -33,7 +33,8 @@ from numba import njit
 
 from .geometry import as_positions
 from .template import template_pairs
-from .potentials import PairPotential, shift_vectors
+from .pairsum import shift_vectors
+from .potentials import PairPotential
 from .blocks import BlockIndex
 from .query import half_list, pair_list
 from .tracker import GridTracker

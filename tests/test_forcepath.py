@@ -81,7 +81,7 @@ def test_random_index_order_same_answer_as_sorted():
 
 
 def _list_args(atoms):
-    from ase_mlg.potentials import shift_vectors
+    from ase_mlg.pairsum import shift_vectors
     calc = MLGCalculator(LennardJones(**AR))
     atoms = atoms.copy()
     atoms.calc = calc
