@@ -14,7 +14,7 @@ list built with a Verlet ``skin``:
   price, and :mod:`ase_mlg.tradeoff` measures it.
 * ``template="auto"``: W is the smallest width that meets ``tolerance``,
   chosen and re-checked against the exact query by
-  :class:`ase_mlg.tradeoff.AutoTemplate` (see there for what is guaranteed
+  :class:`ase_mlg.autotemplate.AutoTemplate` (see there for what is guaranteed
   at the checks and what is not between them).
 
 When the list expires the grid is repaired by swap sweeps
@@ -31,6 +31,7 @@ import numpy as np
 from ase.calculators.calculator import Calculator, all_changes
 from numba import njit
 
+from .autotemplate import AutoTemplate
 from .geometry import as_positions
 from .template import template_pairs
 from .pairsum import shift_vectors
@@ -76,7 +77,7 @@ class MLGCalculator(Calculator):
         E.g. ``LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5)``.
     template : None, odd int, "auto" or AutoTemplate
         ``None`` for exact pair sums; W for Boris's W x W x W template;
-        ``"auto"`` to let :class:`ase_mlg.tradeoff.AutoTemplate` pick W
+        ``"auto"`` to let :class:`ase_mlg.autotemplate.AutoTemplate` pick W
         (pass an ``AutoTemplate(...)`` instance to set its ``widths`` or
         ``check_every``).  ``calc.template`` is then the width in use
         (None: exact) and ``calc.auto.history`` records every check.
@@ -109,9 +110,6 @@ class MLGCalculator(Calculator):
         if not isinstance(potential, PairPotential):
             raise TypeError("potential: expected an ase_mlg.potentials."
                             f"PairPotential, got {type(potential).__name__}")
-        # template="auto": a policy object picks W at list builds (imported
-        # here because ase_mlg.tradeoff imports this module)
-        from .tradeoff import AutoTemplate
         self.auto = None
         if isinstance(template, AutoTemplate):
             if tolerance is not None:

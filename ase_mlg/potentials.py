@@ -76,7 +76,7 @@ from numba.core.dispatcher import Dispatcher
 from .pairfunctions import (lennard_jones_shifted, lennard_jones_shifted_r2,
                             lennard_jones_smooth, lennard_jones_smooth_r2, morse)
 from .pairsum import (_BAD_DISTANCE, _BELOW_RMIN, _BUILT_IN, _GENERIC,
-                      _NON_FINITE, _first_bad_pair, pair_vectors, shift_vectors)
+                      _NON_FINITE, _first_bad_pair)
 from .parallel import threads_for
 
 __all__ = [

@@ -1,34 +1,33 @@
-"""The speed/accuracy trade of Boris's template, measured (DESIGN 1.4, 2.6).
+"""The speed/accuracy trade of Boris's template, measured and reported
+(docs/design.md §7).
 
-Template mode (``MLGCalculator(template=W)``) sums a pair potential over the
-pairs found in a W x W x W logical window around each site of the MLG.  It
-misses the pairs whose atoms sit further apart in the grid than W // 2 sites
-along some axis -- Boris's "close uncounters" (1985, sec. IV.A) -- and it
-sees **at most one image of each pair, the minimum image**: a pair that
-interacts through several periodic images (a cutoff longer than half a cell
-height, e.g. the 4-atom ``small`` scene) keeps one of them, and an atom never
-meets its own images.  On small cells these misses show in the table.
+Template mode (``MLGCalculator(template=W)``) misses the pairs whose atoms
+sit further apart in the grid than W // 2 sites along some axis -- Boris's
+"close uncounters" (1985, sec. IV.A) -- and sees **at most one image of each
+pair, the minimum image**: a pair that interacts through several periodic
+images (a cutoff longer than half a cell height, e.g. the 4-atom ``small``
+scene) keeps one of them, and an atom never meets its own images.  On small
+cells these misses show in the table.
 
-Everything here is *measured*, never modelled: the missed pairs are the set
-difference between the template's pairs and the exact pair list of the
-block query (:mod:`ase_mlg.query`), keyed by ``(i, j, cell shift)``.
+Everything here is *measured*, never modelled: the missed pairs come from
+the pair-set comparison of :mod:`ase_mlg.autotemplate` (the template's pairs
+against the exact block query's, keyed by ``(i, j, cell shift)``), and the
+times from force calls of :class:`~ase_mlg.calculator.MLGCalculator`.
 
 * :func:`measure` -- one scene and one potential: for W = 3 ... 11 and exact
   mode, the fraction of interacting pairs missed, the distance of the closest
   missed pair, energy and force errors against exact mode, time per force
   call, and optionally the NVE energy drift of a short MD run.
-* :class:`TradeoffResult` -- the rows, as a text table, JSON, and plots
-  (:func:`plot_tradeoff`).
-* :class:`AutoTemplate` -- the policy behind ``MLGCalculator(template=
-  "auto")``: pick the smallest W that meets a tolerance, re-check it against
-  the exact query every few list builds.
-* :func:`add_tradeoff_parser` / :func:`run_tradeoff_command` -- the
-  ``ase-mlg tradeoff`` subcommand.
+* :class:`TradeoffResult` -- the rows, as a text table, markdown, JSON, and
+  plots (:func:`plot_tradeoff`).
+
+The policy that picks W for ``template="auto"`` is
+:class:`ase_mlg.autotemplate.AutoTemplate`; ``ase-mlg tradeoff``
+(:mod:`ase_mlg.cli.tradeoff`) runs :func:`measure` from the command line.
 
 Units: Å, eV, eV/Å, seconds (times), ps (drift), fs (MD time step), K.
 """
 
-import inspect
 import json
 import math
 import time
@@ -36,381 +35,48 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .autotemplate import (WIDTHS, compare_pairs, energy_forces, exact_pair_set,
+                           force_errors, parse_widths, template_pair_set)
+from .calculator import MLGCalculator
 from .grid import MLG
-from .template import template_pairs
-from .potentials import pair_vectors
 from .query import exact_pairs
+from .template import template_pairs
 
-__all__ = ["WIDTHS", "CLOCKS", "DIVERGED", "PairSet", "exact_pair_set", "template_pair_set",
-           "compare_pairs", "measure", "TradeoffResult", "plot_tradeoff",
-           "AutoTemplate", "add_tradeoff_parser", "run_tradeoff_command"]
-
-#: Template widths measured by default (Boris used 3, 5 and 7).
-WIDTHS = (3, 5, 7, 9, 11)
+__all__ = ["CLOCKS", "DIVERGED", "measure", "TradeoffResult", "plot_tradeoff"]
 
 
-# --------------------------------------------------------------------------
-# pair sets and their comparison
-# --------------------------------------------------------------------------
-
-@dataclass
-class PairSet:
-    """A half list of *interacting* pairs (``d`` below the species pair's
-    cutoff), each unordered pair once.
-
-    Attributes
-    ----------
-    i, j : int64 (M,)
-    S : int64 (M, 3)
-        Cell shifts: ``D = positions[j] - positions[i] + S @ cell``.
-    D : float64 (M, 3)
-        Distance vectors, Å.
-    d : float64 (M,)
-        Distances, Å.
-    """
-    i: np.ndarray
-    j: np.ndarray
-    S: np.ndarray
-    D: np.ndarray
-    d: np.ndarray
-
-    def __len__(self):
-        return len(self.i)
-
-
-def _interacting(potential, numbers, i, j, S, D, d):
-    """Keep the pairs closer than their own species pair's cutoff (a mixture
-    has several cutoffs; the lists are built at the largest)."""
-    types, _, cutoffs = potential.prepare(numbers)
-    keep = d < cutoffs[types[i], types[j]]
-    return PairSet(np.asarray(i, np.int64)[keep], np.asarray(j, np.int64)[keep],
-                   np.asarray(S, np.int64)[keep], D[keep], d[keep])
-
-
-def exact_pair_set(grid, potential, numbers):
-    """Every interacting pair of the grid's atoms, from the exact block query.
+def check_number(value, name, kind=float, minimum=None, strict=False):
+    """``value`` as a finite float (or an int), bounded below if asked.
 
     Parameters
     ----------
-    grid : MLG
-    potential : PairPotential
-    numbers : int array (N,)
-        Atomic numbers (for per-species cutoffs).
+    value : object
+        A number or its text (command-line options arrive as text).
+    name : str
+        What the value is called in the error message (an argument of
+        :func:`measure`, or an option of ``ase-mlg tradeoff``).
+    kind : {float, int}
+        ``int`` also rejects floats with a fractional part.
+    minimum : float, optional
+        Lower bound, inclusive unless ``strict``.
 
-    Returns
-    -------
-    PairSet
+    Raises
+    ------
+    ValueError
+        One line starting ``"{name}:"``.
     """
-    i, j, S = exact_pairs(grid, potential.cutoff)
-    D, d = pair_vectors(grid.positions, i, j, S.astype(np.float64),
-                        np.ascontiguousarray(grid.box.cell))
-    return _interacting(potential, numbers, i, j, S, D, d)
-
-
-def template_pair_set(grid, width, potential, numbers):
-    """The interacting pairs found in the W x W x W half template (minimum
-    image only).  Same parameters as :func:`exact_pair_set` plus the odd
-    ``width``."""
-    i, j, S, D = template_pairs(grid, width, potential.cutoff)
-    d = np.sqrt(np.einsum("ij,ij->i", D, D))
-    return _interacting(potential, numbers, i, j, S, D, d)
-
-
-def _canonical(i, j, S):
-    """Orient every pair the same way, ``(a, b, S)`` with ``a < b``, or
-    ``a == b`` and the first non-zero shift positive: the two lists may
-    report a pair from either end."""
-    i, j, S = np.asarray(i, np.int64), np.asarray(j, np.int64), np.asarray(S, np.int64)
-    first = np.where(S[:, 0] != 0, S[:, 0], np.where(S[:, 1] != 0, S[:, 1], S[:, 2]))
-    flip = (i > j) | ((i == j) & (first < 0))
-    a = np.where(flip, j, i)
-    b = np.where(flip, i, j)
-    return a, b, np.where(flip[:, None], -S, S)
-
-
-def _pair_keys(sets, natoms):
-    """One int64 key per pair for each set in ``sets`` (pair identity is
-    ``(i, j, S)`` up to orientation).  Falls back to ranking rows when the
-    packed key would overflow int64."""
-    canon = [_canonical(s.i, s.j, s.S) for s in sets]
-    h = max([int(np.abs(c[2]).max(initial=0)) for c in canon] + [0])
-    base = 2 * h + 1
-    if natoms * natoms * base ** 3 < 2 ** 62:
-        keys = []
-        for a, b, S in canon:
-            k = a * natoms + b
-            for c in range(3):
-                k = k * base + (S[:, c] + h)
-            keys.append(k)
-        return keys
-    rows = np.concatenate([np.column_stack([a, b, S]) for a, b, S in canon])
-    _, ids = np.unique(rows, axis=0, return_inverse=True)
-    cuts = np.cumsum([len(s) for s in sets])[:-1]
-    return np.split(ids.reshape(-1).astype(np.int64), cuts)
-
-
-def compare_pairs(exact, found, natoms):
-    """Which interacting pairs a candidate list misses.
-
-    Parameters
-    ----------
-    exact, found : PairSet
-        The reference (every interacting pair) and the candidate list.
-    natoms : int
-
-    Returns
-    -------
-    dict
-        ``pairs`` (true pairs), ``found``, ``missed`` (true pairs not in
-        ``found``), ``extra`` (pairs of ``found`` that are not true pairs,
-        0 for any correct list), ``missed_fraction`` (missed / pairs, 0 when
-        there is no pair), ``closest_missed`` (Å, None if nothing is missed)
-        and ``missed_mask`` (bool (len(exact),), not JSON).
-    """
-    ke, kf = _pair_keys([exact, found], natoms)
-    missed = ~np.isin(ke, kf)
-    extra = int((~np.isin(kf, ke)).sum())
-    n_missed = int(missed.sum())
-    return {
-        "pairs": len(exact), "found": len(found), "missed": n_missed,
-        "extra": extra,
-        "missed_fraction": n_missed / len(exact) if len(exact) else 0.0,
-        "closest_missed": float(exact.d[missed].min()) if n_missed else None,
-        "missed_mask": missed,
-    }
-
-
-def _energy_forces(potential, numbers, pairs):
-    res = potential.evaluate(numbers, pairs.i, pairs.j, pairs.D, pairs.d,
-                             per_atom_virials=False)
-    return res["energy"], res["forces"]
-
-
-def _force_errors(forces, reference):
-    """RMS and max over atoms of ``|F - F_ref|`` (eV/Å)."""
-    if len(forces) == 0:
-        return 0.0, 0.0
-    err = np.sqrt(np.einsum("ij,ij->i", forces - reference, forces - reference))
-    return float(np.sqrt(np.mean(err ** 2))), float(err.max())
-
-
-# --------------------------------------------------------------------------
-# the automatic template width (MLGCalculator(template="auto"))
-# --------------------------------------------------------------------------
-
-_TOLERANCE_KEYS = {"missed": "fraction of interacting pairs missed",
-                   "force": "RMS force error, eV/Å"}
-
-
-def _parse_tolerance(tolerance):
-    if tolerance is None:
-        tolerance = {"missed": 1e-4}
-    elif not isinstance(tolerance, dict):
-        tolerance = {"missed": tolerance}
-    if not tolerance:
-        raise ValueError("tolerance: give 'missed' and/or 'force'")
-    out = {}
-    for key, value in tolerance.items():
-        if key not in _TOLERANCE_KEYS:
-            raise ValueError(f"tolerance: unknown key {key!r}; use "
-                             f"{', '.join(map(repr, _TOLERANCE_KEYS))}")
-        try:
-            value = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"tolerance[{key!r}]: expected a number, got "
-                             f"{value!r}") from None
-        if not math.isfinite(value) or value < 0:
-            raise ValueError(f"tolerance[{key!r}]: must be finite and >= 0, "
-                             f"got {value}")
-        out[key] = value
-    return out
-
-
-class AutoTemplate:
-    """Pick the smallest template width that meets a tolerance, and keep
-    checking it (the policy behind ``MLGCalculator(template="auto")``).
-
-    Parameters
-    ----------
-    tolerance : float or dict, optional
-        A float is the largest fraction of interacting pairs the template may
-        miss.  A dict may hold ``"missed"`` (that fraction) and/or
-        ``"force"`` (largest RMS over atoms of ``|F_template - F_exact|``,
-        eV/Å); every given bound must hold.  Default ``{"missed": 1e-4}``.
-    widths : sequence of odd int
-        Candidate widths, tried in ascending order.
-    check_every : int
-        Pair-list builds between checks (K).  A check also runs on the first
-        build, whenever the calculator hands over a new grid (pbc or number
-        of atoms changed), the cell changed (NPT: the grid is kept, the
-        density is not) or the grid was rebuilt (sweep cap or periodic
-        phase lag).
-
-    Attributes
-    ----------
-    width : int or None
-        The width in use; None means exact mode (no candidate met the
-        tolerance, e.g. a cutoff that needs several images of a pair).
-    history : list of dict
-        One record per check: ``build`` (list-build count), ``width``,
-        ``reason`` ("first", "every K", "new grid", "cell changed",
-        "grid rebuilt"),
-        ``tried`` (widths measured) and the measured ``missed_fraction`` /
-        ``force_rms`` of the chosen width.
-
-    Notes
-    -----
-    **Guaranteed** (measured): at every check the list built right after it
-    uses a width whose missed fraction and/or RMS force error, computed
-    against the exact query *at those positions* and for the pairs inside
-    the interaction cutoff, is within the tolerance -- or the calculator
-    falls back to exact mode.  At a check the smallest such width is taken,
-    so W widens when the scene densifies (compression, a crystal melting)
-    and narrows again when it thins out.
-
-    **Not guaranteed**: anything between checks.  For the next K - 1 list
-    builds, and the steps in between that reuse a list (Verlet skin), the
-    template is not compared with the exact query; if the grid's local
-    order degrades or the density rises within that window, more pairs can
-    be missed than the tolerance allows until the next check.  A check costs
-    one exact query plus usually two template scans (a few list builds on
-    a dense scene); ``check_every=1`` checks every build.
-    """
-
-    def __init__(self, tolerance=None, widths=WIDTHS, check_every=10):
-        self.tolerance = _parse_tolerance(tolerance)
-        self.widths = _parse_widths(widths)
-        if isinstance(check_every, bool) or not isinstance(check_every, (int, np.integer)) \
-                or check_every < 1:
-            raise ValueError(f"check_every: expected an int >= 1, got {check_every!r}")
-        self.check_every = int(check_every)
-        self.width = None
-        self.history = []
-        self._builds = 0
-        self._since_check = 0
-        self._grid = None
-        self._cell = None
-        self._grid_rebuilds = None
-        self._ref, self._ref_key = None, None
-
-    def _reason(self, grid):
-        if self._grid is None:
-            return "first"
-        if grid is not self._grid:
-            return "new grid"
-        if not np.array_equal(grid.box.cell, self._cell):
-            return "cell changed"
-        if grid.stats["rebuilds"] != self._grid_rebuilds:
-            return "grid rebuilt"
-        if self._since_check >= self.check_every:
-            return "every K"
-        return None
-
-    def evaluate(self, grid, potential, numbers, width):
-        """Measure one width against the exact query on ``grid``.
-
-        Returns a dict with ``missed_fraction``, ``force_rms`` (only if a
-        force tolerance is set) and ``ok`` (all bounds met)."""
-        exact, ref = self._reference(grid, potential, numbers)
-        found = template_pair_set(grid, width, potential, numbers)
-        rec = {"missed_fraction": compare_pairs(exact, found, len(numbers))["missed_fraction"]}
-        ok = rec["missed_fraction"] <= self.tolerance.get("missed", math.inf)
-        if "force" in self.tolerance:
-            rec["force_rms"] = _force_errors(
-                _energy_forces(potential, numbers, found)[1], ref)[0]
-            ok = ok and rec["force_rms"] <= self.tolerance["force"]
-        rec["ok"] = bool(ok)
-        return rec
-
-    def _reference(self, grid, potential, numbers):
-        # one exact query (and exact forces) per check, shared by all widths
-        key = (id(grid), grid.stats["updates"], grid.stats["rebuilds"])
-        if self._ref_key != key:
-            exact = exact_pair_set(grid, potential, numbers)
-            forces = (_energy_forces(potential, numbers, exact)[1]
-                      if "force" in self.tolerance else None)
-            self._ref, self._ref_key = (exact, forces), key
-        return self._ref
-
-    def _search(self, grid, potential, numbers):
-        """Smallest width meeting the tolerance: (width or None, its record,
-        widths tried).
-
-        The missed pairs can only shrink as W grows (the W template holds
-        every site of the W - 2 one), so the search starts at the width in
-        use: if it passes, narrower ones are tried until one fails; if not,
-        wider ones until one passes.  For the missed fraction this is the
-        answer of an ascending search from the smallest width, usually for
-        two template scans instead of four; the RMS force error need not be
-        monotone in W (missed forces can cancel), so with a force tolerance
-        the result is the narrowest of the passing widths next to the one in
-        use."""
-        ws = self.widths
-        start = ws.index(self.width) if self.width in ws else 0
-        tried, best, rec_best = [], None, None
-        rec = self.evaluate(grid, potential, numbers, ws[start])
-        tried.append(ws[start])
-        if rec["ok"]:
-            best, rec_best = ws[start], rec
-            for w in reversed(ws[:start]):
-                rec = self.evaluate(grid, potential, numbers, w)
-                tried.append(w)
-                if not rec["ok"]:
-                    break
-                best, rec_best = w, rec
-            return best, rec_best, tried
-        for w in ws[start + 1:]:
-            rec = self.evaluate(grid, potential, numbers, w)
-            tried.append(w)
-            if rec["ok"]:
-                return w, rec, tried
-        return None, rec, tried
-
-    def choose(self, grid, potential, numbers):
-        """Width for the list about to be built on ``grid`` (called by the
-        calculator once per list build, after the grid is up to date).
-
-        Returns
-        -------
-        int or None
-            W, or None for exact mode.
-        """
-        self._builds += 1
-        reason = self._reason(grid)
-        if reason is None:
-            self._since_check += 1
-            return self.width
-        chosen, rec, tried = self._search(grid, potential, numbers)
-        if chosen is None:
-            rec = {"missed_fraction": 0.0, **({"force_rms": 0.0}
-                                              if "force" in self.tolerance else {})}
-        rec.pop("ok", None)
-        self.width = chosen
-        self.history.append({"build": self._builds, "width": chosen,
-                             "reason": reason, "tried": tried, **rec})
-        self._grid, self._grid_rebuilds = grid, grid.stats["rebuilds"]
-        self._cell = grid.box.cell.copy()
-        self._since_check = 1
-        self._ref, self._ref_key = None, None  # release the reference list
-        return chosen
-
-    def __repr__(self):
-        return (f"AutoTemplate(tolerance={self.tolerance}, widths={self.widths}, "
-                f"check_every={self.check_every}, width={self.width})")
-
-
-def _parse_widths(widths):
-    if isinstance(widths, (str, bytes)):
-        raise ValueError(f"widths: expected a sequence of odd ints, got {widths!r}")
+    if kind is int and isinstance(value, float) and not value.is_integer():
+        raise ValueError(f"{name}: expected an integer, got {value!r}")
     try:
-        ws = [int(w) for w in widths]
-        if any(w != float(x) for w, x in zip(ws, widths)):
-            raise ValueError
+        v = kind(value)
     except (TypeError, ValueError):
-        raise ValueError(f"widths: expected odd positive ints, got {widths!r}") from None
-    if not ws or any(w < 1 or w % 2 == 0 for w in ws):
-        raise ValueError(f"widths: expected odd positive ints, got {list(widths)!r}")
-    return tuple(sorted(set(ws)))
+        raise ValueError(f"{name}: expected a number, got {value!r}") from None
+    if kind is float and not math.isfinite(v):
+        raise ValueError(f"{name}: must be finite, got {value!r}")
+    if minimum is not None and (v <= minimum if strict else v < minimum):
+        raise ValueError(f"{name}: must be {'>' if strict else '>='} {minimum}, "
+                         f"got {value!r}")
+    return v
 
 
 # --------------------------------------------------------------------------
@@ -445,7 +111,6 @@ def _interleaved_medians(funcs, repeats, clock=time.perf_counter):
 def _force_call(atoms, potential, width, grid_kwargs):
     """A function doing one force call that builds its pair list (skin 0):
     grid update, pair search and pair sum."""
-    from .calculator import MLGCalculator
     a = atoms.copy()
     calc = MLGCalculator(potential, template=width, skin=0.0, grid_kwargs=grid_kwargs)
     a.calc = calc
@@ -472,7 +137,6 @@ def _md_run(atoms, potential, width, steps, timestep_fs, skin, grid_kwargs,
     from ase import units
     from ase.md.verlet import VelocityVerlet
 
-    from .calculator import MLGCalculator
     a = atoms.copy()
     a.set_momenta(atoms.get_momenta())
     calc = MLGCalculator(potential, template=width, skin=skin, grid_kwargs=grid_kwargs)
@@ -568,12 +232,12 @@ def measure(atoms, potential, widths=WIDTHS, md_steps=0, timestep_fs=2.0,
         ``missed_fraction_end`` (on the grid the calculator carried through
         the run, at its final positions).
     """
-    widths = _parse_widths(widths)
-    md_steps = _nonnegative_int(md_steps, "md_steps")
-    repeats = _nonnegative_int(repeats, "repeats") or 1
-    timestep_fs = _positive_float(timestep_fs, "timestep_fs")
-    skin = _nonnegative_float(skin, "skin")
-    temperature_K = _nonnegative_float(temperature_K, "temperature_K")
+    widths = parse_widths(widths)
+    md_steps = check_number(md_steps, "md_steps", int, minimum=0)
+    repeats = check_number(repeats, "repeats", int, minimum=0) or 1
+    timestep_fs = check_number(timestep_fs, "timestep_fs", minimum=0, strict=True)
+    skin = check_number(skin, "skin", minimum=0)
+    temperature_K = check_number(temperature_K, "temperature_K", minimum=0)
     grid_kwargs = dict(grid_kwargs or {})
     if clock not in CLOCKS:
         raise ValueError(f"clock: expected one of {sorted(CLOCKS)}, got {clock!r}")
@@ -584,7 +248,7 @@ def measure(atoms, potential, widths=WIDTHS, md_steps=0, timestep_fs=2.0,
         raise ValueError("atoms: the scene has no atoms")
     grid = MLG.from_atoms(atoms, **grid_kwargs)
     exact = exact_pair_set(grid, potential, numbers)
-    e_ref, f_ref = _energy_forces(potential, numbers, exact)
+    e_ref, f_ref = energy_forces(potential, numbers, exact)
 
     modes = list(widths) + ["exact"]
     rows, searches, calls = [], {}, {}
@@ -598,8 +262,8 @@ def measure(atoms, potential, widths=WIDTHS, md_steps=0, timestep_fs=2.0,
             searches[mode] = lambda w=width: template_pairs(grid, w, potential.cutoff)
         calls[mode] = _force_call(atoms, potential, width, grid_kwargs)
         cmp = compare_pairs(exact, found, n)
-        energy, forces = _energy_forces(potential, numbers, found)
-        rms, fmax = _force_errors(forces, f_ref)
+        energy, forces = energy_forces(potential, numbers, found)
+        rms, fmax = force_errors(forces, f_ref)
         rows.append({"template": mode, "pairs": cmp["found"], "missed": cmp["missed"],
                      "missed_fraction": cmp["missed_fraction"], "extra": cmp["extra"],
                      "closest_missed": cmp["closest_missed"],
@@ -829,220 +493,3 @@ def plot_tradeoff(results, path, title=None):
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return str(path)
-
-
-# --------------------------------------------------------------------------
-# the ase-mlg tradeoff subcommand
-# --------------------------------------------------------------------------
-
-def _number(value, name, cast=float):
-    try:
-        v = cast(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a number, got {value!r}") from None
-    if cast is float and not math.isfinite(v):
-        raise ValueError(f"{name}: must be finite, got {value!r}")
-    return v
-
-
-def _positive_float(value, name):
-    v = _number(value, name)
-    if v <= 0:
-        raise ValueError(f"{name}: must be > 0, got {value!r}")
-    return v
-
-
-def _nonnegative_float(value, name):
-    v = _number(value, name)
-    if v < 0:
-        raise ValueError(f"{name}: must be >= 0, got {value!r}")
-    return v
-
-
-def _nonnegative_int(value, name):
-    if isinstance(value, float) and not value.is_integer():
-        raise ValueError(f"{name}: expected an integer, got {value!r}")
-    v = _number(value, name, int)
-    if v < 0:
-        raise ValueError(f"{name}: must be >= 0, got {value!r}")
-    return v
-
-
-POTENTIALS = ("lj", "morse")
-
-
-def add_tradeoff_parser(subparsers):
-    """Add ``tradeoff`` to an argparse ``subparsers`` object.
-
-    Numbers are read as strings and checked by :func:`run_tradeoff_command`,
-    so every bad value becomes a one-line ``ValueError`` naming the
-    argument.
-    """
-    from .calculator import MLGCalculator
-    skin = inspect.signature(MLGCalculator.__init__).parameters["skin"].default
-    p = subparsers.add_parser(
-        "tradeoff",
-        help="measure template width W against exact mode: missed pairs, "
-             "energy/force errors, time, NVE drift",
-        description="Measure Boris's template (W = 3..11) against exact mode on "
-                    "a structure file (any format ase.io.read reads) or a "
-                    "built-in scene; with no arguments, the LJ argon liquid "
-                    "(rho* 0.8) at rc = 2.5 sigma. Template mode sees one image "
-                    "per pair.")
-    p.add_argument("structure", nargs="?", metavar="STRUCTURE_FILE",
-                   help="structure file readable by ase.io.read (its last "
-                        "frame); instead of --scene")
-    p.add_argument("--scene", help="built-in scene: liquid (the default when "
-                   "no STRUCTURE_FILE is given), copper, gas, nanoparticle, "
-                   "sheared, slab, small, mixture")
-    p.add_argument("--natoms", default="4000",
-                   help="approximate size of a built-in scene (default %(default)s)")
-    p.add_argument("--cutoff", metavar="RC",
-                   help="cutoff radius, Å (default: 2.5 sigma for LJ, "
-                        "2.7 r0 for Morse, ASE's Morse default)")
-    p.add_argument("--potential", default="lj",
-                   help="lj (default) or morse")
-    p.add_argument("--sigma", default="3.405",
-                   help="LJ sigma, Å (default %(default)s, argon)")
-    p.add_argument("--epsilon", default=None,
-                   help="well depth, eV (default: LJ 0.0104, argon; Morse 0.35)")
-    p.add_argument("--smooth", action="store_true",
-                   help="LJ with ASE's smooth cutoff function (default: shifted)")
-    p.add_argument("--r0", default="2.55",
-                   help="Morse r0, Å (default %(default)s)")
-    p.add_argument("--rho0", default="6.0",
-                   help="Morse rho0 (default %(default)s)")
-    p.add_argument("--widths", default="3,5,7,9,11",
-                   help="comma-separated odd template widths (default %(default)s)")
-    p.add_argument("--md", default="0", metavar="STEPS",
-                   help="NVE VelocityVerlet steps per mode (default %(default)s: "
-                        "no MD)")
-    p.add_argument("--timestep", default="2.0",
-                   help="MD time step, fs (default %(default)s)")
-    p.add_argument("--temperature", default="100",
-                   help="initial MD temperature, K (default %(default)s)")
-    p.add_argument("--skin", default=str(skin),
-                   help="MD Verlet skin, Å (default %(default)s, the same as "
-                        "MLGCalculator's)")
-    p.add_argument("--repeats", default="5",
-                   help="timed repeats, the median is reported (default %(default)s)")
-    p.add_argument("--seed", default="0",
-                   help="seed of the MD momenta (default %(default)s)")
-    p.add_argument("--clock", default="wall",
-                   help="wall (default) or cpu: CPU time of the process, robust "
-                        "on a loaded machine with NUMBA_NUM_THREADS=1")
-    p.add_argument("--json", action="store_true",
-                   help="print JSON instead of the table")
-    p.add_argument("--plot", metavar="DIR",
-                   help="write tradeoff.png into DIR (created if missing)")
-    return p
-
-
-def _potential_from_args(args, cutoff):
-    from .potentials import LennardJones, Morse
-    name = str(args.potential).lower()
-    if name not in POTENTIALS:
-        raise ValueError(f"--potential: expected one of {', '.join(POTENTIALS)}, "
-                         f"got {args.potential!r}")
-    if name == "lj":
-        eps = 0.0104 if args.epsilon is None else args.epsilon
-        return LennardJones(sigma=_positive_float(args.sigma, "--sigma"),
-                            epsilon=_nonnegative_float(eps, "--epsilon"),
-                            rc=cutoff, smooth=bool(args.smooth))
-    eps = 0.35 if args.epsilon is None else args.epsilon
-    r0 = _positive_float(args.r0, "--r0")
-    # Morse's cutoff is given in units of r0; keep ASE's ratio 1.9 / 2.7
-    # between the start and the end of the cutoff function
-    return Morse(epsilon=_nonnegative_float(eps, "--epsilon"), r0=r0,
-                 rho0=_positive_float(args.rho0, "--rho0"),
-                 rcut1=cutoff / r0 * 1.9 / 2.7, rcut2=cutoff / r0)
-
-
-def _atoms_from_args(args):
-    from .scenes import make_scene
-    if (args.structure is None) == (args.scene is None):
-        raise ValueError("STRUCTURE_FILE/--scene: give exactly one of a structure "
-                         "file or --scene NAME")
-    if args.scene is not None:
-        natoms = _nonnegative_int(args.natoms, "--natoms")
-        if natoms < 1:
-            raise ValueError(f"--natoms: must be >= 1, got {args.natoms!r}")
-        try:
-            return make_scene(args.scene, natoms), args.scene
-        except ValueError as exc:
-            raise ValueError(f"--scene: {exc}") from None
-    from ase.io import read
-    try:
-        atoms = read(args.structure)
-    except Exception as exc:  # ase.io raises many kinds for unreadable files
-        msg = " ".join(str(exc).split()) or type(exc).__name__
-        raise ValueError(f"STRUCTURE_FILE: cannot read {args.structure!r}: {msg}") from None
-    if isinstance(atoms, list):
-        atoms = atoms[-1]
-    if len(atoms) == 0:
-        raise ValueError(f"STRUCTURE_FILE: {args.structure!r} holds no atoms")
-    return atoms, str(args.structure)
-
-
-def run_tradeoff_command(args, out=None):
-    """Run ``ase-mlg tradeoff`` for parsed ``args``; print the table (or
-    JSON) to ``out`` (default stdout) and write the plot if asked.
-
-    Returns
-    -------
-    TradeoffResult
-
-    Raises
-    ------
-    ValueError
-        One line naming the bad argument.
-    """
-    import os
-    import sys
-    out = out or sys.stdout
-    if args.structure is None and args.scene is None:
-        args.scene = "liquid"  # the default: the LJ argon liquid
-    if args.cutoff is None:
-        # default: 2.5 sigma for LJ, ASE's Morse cutoff 2.7 r0 for Morse
-        if str(args.potential).lower() == "morse":
-            args.cutoff = 2.7 * _positive_float(args.r0, "--r0")
-        else:
-            args.cutoff = 2.5 * _positive_float(args.sigma, "--sigma")
-    cutoff = _positive_float(args.cutoff, "--cutoff")
-    widths = _parse_widths_text(args.widths)
-    md = _nonnegative_int(args.md, "--md")
-    timestep = _positive_float(args.timestep, "--timestep")
-    temperature = _nonnegative_float(args.temperature, "--temperature")
-    skin = _nonnegative_float(args.skin, "--skin")
-    repeats = _nonnegative_int(args.repeats, "--repeats")
-    if repeats < 1:
-        raise ValueError(f"--repeats: must be >= 1, got {args.repeats!r}")
-    seed = _nonnegative_int(args.seed, "--seed")
-    if args.clock not in CLOCKS:
-        raise ValueError(f"--clock: expected one of {', '.join(CLOCKS)}, got {args.clock!r}")
-    if args.plot is not None and os.path.exists(args.plot) and not os.path.isdir(args.plot):
-        raise ValueError(f"--plot: {args.plot!r} exists and is not a directory")
-    potential = _potential_from_args(args, cutoff)
-    atoms, label = _atoms_from_args(args)
-    result = measure(atoms, potential, widths=widths, md_steps=md,
-                     timestep_fs=timestep, temperature_K=temperature, skin=skin,
-                     repeats=repeats, seed=seed, label=label, clock=args.clock)
-    print(result.to_json(indent=1) if args.json else result.table(), file=out)
-    if args.plot is not None:
-        os.makedirs(args.plot, exist_ok=True)
-        path = plot_tradeoff(result, os.path.join(args.plot, "tradeoff.png"))
-        if not args.json:
-            print(f"plot: {path}", file=out)
-    return result
-
-
-def _parse_widths_text(text):
-    try:
-        values = [int(w) for w in str(text).split(",") if w.strip()]
-    except ValueError:
-        raise ValueError(f"--widths: expected comma-separated odd ints, got {text!r}") from None
-    try:
-        return _parse_widths(values)
-    except ValueError:
-        raise ValueError(f"--widths: expected comma-separated odd positive ints, "
-                         f"got {text!r}") from None

@@ -14,8 +14,9 @@ from ase_mlg import MLG, MLGCalculator
 from ase_mlg.template import template_pairs
 from ase_mlg.potentials import LennardJones, lennard_jones_mixture
 from ase_mlg.scenes import SCENES, make_scene
-from ase_mlg.tradeoff import (AutoTemplate, TradeoffResult, add_tradeoff_parser,
-                              measure, run_tradeoff_command)
+from ase_mlg.autotemplate import AutoTemplate
+from ase_mlg.cli.tradeoff import add_parser as add_tradeoff_parser, run as run_tradeoff_command
+from ase_mlg.tradeoff import TradeoffResult, measure
 
 METAL = {"copper", "sheared", "slab", "small", "nanoparticle"}
 

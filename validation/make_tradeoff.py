@@ -1,16 +1,18 @@
-"""Regenerate validation/tradeoff.md: the template trade on every scene of
-DESIGN 4 at N ~ 10^4.
+"""Regenerate validation/reports/tradeoff.md: the template trade on every
+scene of DESIGN 4 at N ~ 10^4.
 
-    cd /work/main && PYTHONPATH=. /work/venv/bin/python validation/make_tradeoff.py
+    python validation/make_tradeoff.py
 
-(about 8-10 minutes on the 2-core machine).  Timings are CPU time of the
-process with the numba kernels on one thread (``--threads 1``): on this
-shared machine other jobs keep the load above the core count, so wall time
-mostly measures waiting for a core (MD steps came out as multiples of the
-4 ms scheduler tick), and every OpenMP parallel region waits 4-8 ms for a
-descheduled thread, which swamps a 1 ms pair search.  Serial CPU times
-measure the algorithms; their ratios are what the tables report.  Writes ``validation/tradeoff.md``,
-``validation/tradeoff/tradeoff.png`` and ``validation/tradeoff/tradeoff.json``
+(about 8-10 minutes on the 2-core machine; ``pip install -e .`` first).
+Timings are CPU time of the process with the numba kernels on one thread
+(``--threads 1``): on this shared machine other jobs keep the load above the
+core count, so wall time mostly measures waiting for a core (MD steps came
+out as multiples of the 4 ms scheduler tick), and every OpenMP parallel
+region waits 4-8 ms for a descheduled thread, which swamps a 1 ms pair
+search.  Serial CPU times measure the algorithms; their ratios are what the
+tables report.  Writes ``validation/reports/tradeoff.md``,
+``validation/reports/tradeoff/tradeoff.png`` and
+``validation/reports/tradeoff/tradeoff.json``
 (every row of every scene, readable with
 ``ase_mlg.tradeoff.TradeoffResult.from_dict``; ``--from-json`` rewrites the
 report and plot from it without measuring again).  ``--scenes liquid,gas``,
@@ -39,10 +41,12 @@ import numpy as np
 from ase_mlg.grid import MLG
 from ase_mlg.potentials import LennardJones, lennard_jones_mixture
 from ase_mlg.scenes import SCENES, make_scene
-from ase_mlg.tradeoff import AutoTemplate, TradeoffResult, measure, plot_tradeoff
+from ase_mlg.autotemplate import (AutoTemplate, compare_pairs, exact_pair_set,
+                                  template_pair_set)
+from ase_mlg.tradeoff import TradeoffResult, measure, plot_tradeoff
 
-HERE = Path(__file__).resolve().parent
-COMMAND = "cd /work/main && PYTHONPATH=. /work/venv/bin/python validation/make_tradeoff.py"
+REPORTS = Path(__file__).resolve().parent / "reports"
+COMMAND = "python validation/make_tradeoff.py"
 
 ARGON = dict(sigma=3.405, epsilon=0.0104, rc=8.5)
 CU_LJ = dict(sigma=2.3, epsilon=0.4, rc=5.0)
@@ -117,7 +121,6 @@ def summary(results, autos):
 def diagnose(results, scenes):
     """Where the misses of the worst scenes come from (measured here)."""
     from ase_mlg import neighbor_list
-    from ase_mlg.tradeoff import compare_pairs, exact_pair_set, template_pair_set
     out = {}
     if "nanoparticle" in scenes:
         atoms, pot = scenes["nanoparticle"]
@@ -232,7 +235,7 @@ def main(argv=None):
     p.add_argument("--md", type=int, default=100, help="NVE steps per mode")
     p.add_argument("--natoms", type=int, default=None, help="override N (trial runs)")
     p.add_argument("--repeats", type=int, default=7)
-    p.add_argument("--out", default=str(HERE))
+    p.add_argument("--out", default=str(REPORTS))
     p.add_argument("--from-json", metavar="PATH",
                    help="rewrite the report and plot from a saved tradeoff.json")
     p.add_argument("--threads", type=int, default=1,

@@ -1,0 +1,417 @@
+"""The ``template="auto"`` policy and the pair-set comparison it measures with
+(docs/design.md §7).
+
+Template mode (``MLGCalculator(template=W)``) sums a pair potential over the
+pairs found in a W x W x W logical window around each site of the MLG.  It
+misses the pairs whose atoms sit further apart in the grid than W // 2 sites
+along some axis -- Boris's "close uncounters" (1985, sec. IV.A) -- and it
+sees at most one image of each pair, the minimum image.  What it misses is
+*measured* here, never modelled: the set difference between the template's
+interacting pairs and those of the exact block query (:mod:`ase_mlg.query`),
+keyed by ``(i, j, cell shift)``.
+
+* :class:`PairSet`, :func:`exact_pair_set`, :func:`template_pair_set`,
+  :func:`compare_pairs` -- the interacting pairs of each list and which ones
+  a candidate misses; :func:`energy_forces` / :func:`force_errors` -- what
+  the misses cost in energy and forces.
+* :class:`AutoTemplate` -- the policy behind ``MLGCalculator(template=
+  "auto")``: pick the smallest W that meets a tolerance, re-check it against
+  the exact query every few list builds.
+
+What the policy promises
+------------------------
+**Guaranteed** (measured): at every check the list built right after it
+uses a width whose missed fraction and/or RMS force error, computed
+against the exact query *at those positions* and for the pairs inside
+the interaction cutoff, is within the tolerance -- or the calculator
+falls back to exact mode.  At a check the smallest such width is taken,
+so W widens when the scene densifies (compression, a crystal melting)
+and narrows again when it thins out.
+
+**Not guaranteed**: anything between checks.  For the next K - 1 list
+builds, and the steps in between that reuse a list (Verlet skin), the
+template is not compared with the exact query; if the grid's local
+order degrades or the density rises within that window, more pairs can
+be missed than the tolerance allows until the next check.  A check costs
+one exact query plus usually two template scans (a few list builds on
+a dense scene); ``check_every=1`` checks every build.
+
+Units: Å, eV, eV/Å.  The measurement built on these pieces (timings, NVE
+drift, tables) is :mod:`ase_mlg.tradeoff`.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .pairsum import pair_vectors
+from .query import exact_pairs
+from .template import template_pairs
+
+__all__ = ["WIDTHS", "parse_widths", "PairSet", "exact_pair_set", "template_pair_set",
+           "compare_pairs", "energy_forces", "force_errors", "AutoTemplate"]
+
+#: Template widths measured by default (Boris used 3, 5 and 7).
+WIDTHS = (3, 5, 7, 9, 11)
+
+
+def parse_widths(widths):
+    """Template widths as a sorted tuple of distinct odd positive ints.
+
+    Raises
+    ------
+    ValueError
+        One line starting ``widths:`` for a string, a non-integer or an even
+        or non-positive width.
+    """
+    if isinstance(widths, (str, bytes)):
+        raise ValueError(f"widths: expected a sequence of odd ints, got {widths!r}")
+    try:
+        ws = [int(w) for w in widths]
+        if any(w != float(x) for w, x in zip(ws, widths)):
+            raise ValueError
+    except (TypeError, ValueError):
+        raise ValueError(f"widths: expected odd positive ints, got {widths!r}") from None
+    if not ws or any(w < 1 or w % 2 == 0 for w in ws):
+        raise ValueError(f"widths: expected odd positive ints, got {list(widths)!r}")
+    return tuple(sorted(set(ws)))
+
+
+# --------------------------------------------------------------------------
+# pair sets and their comparison
+# --------------------------------------------------------------------------
+
+@dataclass
+class PairSet:
+    """A half list of *interacting* pairs (``d`` below the species pair's
+    cutoff), each unordered pair once.
+
+    Attributes
+    ----------
+    i, j : int64 (M,)
+    S : int64 (M, 3)
+        Cell shifts: ``D = positions[j] - positions[i] + S @ cell``.
+    D : float64 (M, 3)
+        Distance vectors, Å.
+    d : float64 (M,)
+        Distances, Å.
+    """
+    i: np.ndarray
+    j: np.ndarray
+    S: np.ndarray
+    D: np.ndarray
+    d: np.ndarray
+
+    def __len__(self):
+        return len(self.i)
+
+
+def _interacting(potential, numbers, i, j, S, D, d):
+    """Keep the pairs closer than their own species pair's cutoff (a mixture
+    has several cutoffs; the lists are built at the largest)."""
+    types, _, cutoffs = potential.prepare(numbers)
+    keep = d < cutoffs[types[i], types[j]]
+    return PairSet(np.asarray(i, np.int64)[keep], np.asarray(j, np.int64)[keep],
+                   np.asarray(S, np.int64)[keep], D[keep], d[keep])
+
+
+def exact_pair_set(grid, potential, numbers):
+    """Every interacting pair of the grid's atoms, from the exact block query.
+
+    Parameters
+    ----------
+    grid : MLG
+    potential : PairPotential
+    numbers : int array (N,)
+        Atomic numbers (for per-species cutoffs).
+
+    Returns
+    -------
+    PairSet
+    """
+    i, j, S = exact_pairs(grid, potential.cutoff)
+    D, d = pair_vectors(grid.positions, i, j, S.astype(np.float64),
+                        np.ascontiguousarray(grid.box.cell))
+    return _interacting(potential, numbers, i, j, S, D, d)
+
+
+def template_pair_set(grid, width, potential, numbers):
+    """The interacting pairs found in the W x W x W half template (minimum
+    image only).  Same parameters as :func:`exact_pair_set` plus the odd
+    ``width``."""
+    i, j, S, D = template_pairs(grid, width, potential.cutoff)
+    d = np.sqrt(np.einsum("ij,ij->i", D, D))
+    return _interacting(potential, numbers, i, j, S, D, d)
+
+
+def _canonical(i, j, S):
+    """Orient every pair the same way, ``(a, b, S)`` with ``a < b``, or
+    ``a == b`` and the first non-zero shift positive: the two lists may
+    report a pair from either end."""
+    i, j, S = np.asarray(i, np.int64), np.asarray(j, np.int64), np.asarray(S, np.int64)
+    first = np.where(S[:, 0] != 0, S[:, 0], np.where(S[:, 1] != 0, S[:, 1], S[:, 2]))
+    flip = (i > j) | ((i == j) & (first < 0))
+    a = np.where(flip, j, i)
+    b = np.where(flip, i, j)
+    return a, b, np.where(flip[:, None], -S, S)
+
+
+def _pair_keys(sets, natoms):
+    """One int64 key per pair for each set in ``sets`` (pair identity is
+    ``(i, j, S)`` up to orientation).  Falls back to ranking rows when the
+    packed key would overflow int64."""
+    canon = [_canonical(s.i, s.j, s.S) for s in sets]
+    h = max([int(np.abs(c[2]).max(initial=0)) for c in canon] + [0])
+    base = 2 * h + 1
+    if natoms * natoms * base ** 3 < 2 ** 62:
+        keys = []
+        for a, b, S in canon:
+            k = a * natoms + b
+            for c in range(3):
+                k = k * base + (S[:, c] + h)
+            keys.append(k)
+        return keys
+    rows = np.concatenate([np.column_stack([a, b, S]) for a, b, S in canon])
+    _, ids = np.unique(rows, axis=0, return_inverse=True)
+    cuts = np.cumsum([len(s) for s in sets])[:-1]
+    return np.split(ids.reshape(-1).astype(np.int64), cuts)
+
+
+def compare_pairs(exact, found, natoms):
+    """Which interacting pairs a candidate list misses.
+
+    Parameters
+    ----------
+    exact, found : PairSet
+        The reference (every interacting pair) and the candidate list.
+    natoms : int
+
+    Returns
+    -------
+    dict
+        ``pairs`` (true pairs), ``found``, ``missed`` (true pairs not in
+        ``found``), ``extra`` (pairs of ``found`` that are not true pairs,
+        0 for any correct list), ``missed_fraction`` (missed / pairs, 0 when
+        there is no pair), ``closest_missed`` (Å, None if nothing is missed)
+        and ``missed_mask`` (bool (len(exact),), not JSON).
+    """
+    ke, kf = _pair_keys([exact, found], natoms)
+    missed = ~np.isin(ke, kf)
+    extra = int((~np.isin(kf, ke)).sum())
+    n_missed = int(missed.sum())
+    return {
+        "pairs": len(exact), "found": len(found), "missed": n_missed,
+        "extra": extra,
+        "missed_fraction": n_missed / len(exact) if len(exact) else 0.0,
+        "closest_missed": float(exact.d[missed].min()) if n_missed else None,
+        "missed_mask": missed,
+    }
+
+
+def energy_forces(potential, numbers, pairs):
+    """Energy (eV) and forces (eV/Å, (N, 3)) summed over the pairs of a
+    :class:`PairSet` only."""
+    res = potential.evaluate(numbers, pairs.i, pairs.j, pairs.D, pairs.d,
+                             per_atom_virials=False)
+    return res["energy"], res["forces"]
+
+
+def force_errors(forces, reference):
+    """RMS and max over atoms of ``|F - F_ref|`` (eV/Å)."""
+    if len(forces) == 0:
+        return 0.0, 0.0
+    err = np.sqrt(np.einsum("ij,ij->i", forces - reference, forces - reference))
+    return float(np.sqrt(np.mean(err ** 2))), float(err.max())
+
+
+# --------------------------------------------------------------------------
+# the automatic template width (MLGCalculator(template="auto"))
+# --------------------------------------------------------------------------
+
+_TOLERANCE_KEYS = {"missed": "fraction of interacting pairs missed",
+                   "force": "RMS force error, eV/Å"}
+
+
+def _parse_tolerance(tolerance):
+    if tolerance is None:
+        tolerance = {"missed": 1e-4}
+    elif not isinstance(tolerance, dict):
+        tolerance = {"missed": tolerance}
+    if not tolerance:
+        raise ValueError("tolerance: give 'missed' and/or 'force'")
+    out = {}
+    for key, value in tolerance.items():
+        if key not in _TOLERANCE_KEYS:
+            raise ValueError(f"tolerance: unknown key {key!r}; use "
+                             f"{', '.join(map(repr, _TOLERANCE_KEYS))}")
+        try:
+            value = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"tolerance[{key!r}]: expected a number, got "
+                             f"{value!r}") from None
+        if not math.isfinite(value) or value < 0:
+            raise ValueError(f"tolerance[{key!r}]: must be finite and >= 0, "
+                             f"got {value}")
+        out[key] = value
+    return out
+
+
+class AutoTemplate:
+    """Pick the smallest template width that meets a tolerance, and keep
+    checking it (the policy behind ``MLGCalculator(template="auto")``).
+
+    Parameters
+    ----------
+    tolerance : float or dict, optional
+        A float is the largest fraction of interacting pairs the template may
+        miss.  A dict may hold ``"missed"`` (that fraction) and/or
+        ``"force"`` (largest RMS over atoms of ``|F_template - F_exact|``,
+        eV/Å); every given bound must hold.  Default ``{"missed": 1e-4}``.
+    widths : sequence of odd int
+        Candidate widths, tried in ascending order.
+    check_every : int
+        Pair-list builds between checks (K).  A check also runs on the first
+        build, whenever the calculator hands over a new grid (pbc or number
+        of atoms changed), the cell changed (NPT: the grid is kept, the
+        density is not) or the grid was rebuilt (sweep cap or periodic
+        phase lag).
+
+    Attributes
+    ----------
+    width : int or None
+        The width in use; None means exact mode (no candidate met the
+        tolerance, e.g. a cutoff that needs several images of a pair).
+    history : list of dict
+        One record per check: ``build`` (list-build count), ``width``,
+        ``reason`` ("first", "every K", "new grid", "cell changed",
+        "grid rebuilt"),
+        ``tried`` (widths measured) and the measured ``missed_fraction`` /
+        ``force_rms`` of the chosen width.
+
+    Notes
+    -----
+    The tolerance is guaranteed at the checks, not between them: see the
+    module docstring and docs/design.md §7.
+    """
+
+    def __init__(self, tolerance=None, widths=WIDTHS, check_every=10):
+        self.tolerance = _parse_tolerance(tolerance)
+        self.widths = parse_widths(widths)
+        if isinstance(check_every, bool) or not isinstance(check_every, (int, np.integer)) \
+                or check_every < 1:
+            raise ValueError(f"check_every: expected an int >= 1, got {check_every!r}")
+        self.check_every = int(check_every)
+        self.width = None
+        self.history = []
+        self._builds = 0
+        self._since_check = 0
+        self._grid = None
+        self._cell = None
+        self._grid_rebuilds = None
+        self._ref, self._ref_key = None, None
+
+    def _reason(self, grid):
+        if self._grid is None:
+            return "first"
+        if grid is not self._grid:
+            return "new grid"
+        if not np.array_equal(grid.box.cell, self._cell):
+            return "cell changed"
+        if grid.stats["rebuilds"] != self._grid_rebuilds:
+            return "grid rebuilt"
+        if self._since_check >= self.check_every:
+            return "every K"
+        return None
+
+    def evaluate(self, grid, potential, numbers, width):
+        """Measure one width against the exact query on ``grid``.
+
+        Returns a dict with ``missed_fraction``, ``force_rms`` (only if a
+        force tolerance is set) and ``ok`` (all bounds met)."""
+        exact, ref = self._reference(grid, potential, numbers)
+        found = template_pair_set(grid, width, potential, numbers)
+        rec = {"missed_fraction": compare_pairs(exact, found, len(numbers))["missed_fraction"]}
+        ok = rec["missed_fraction"] <= self.tolerance.get("missed", math.inf)
+        if "force" in self.tolerance:
+            rec["force_rms"] = force_errors(
+                energy_forces(potential, numbers, found)[1], ref)[0]
+            ok = ok and rec["force_rms"] <= self.tolerance["force"]
+        rec["ok"] = bool(ok)
+        return rec
+
+    def _reference(self, grid, potential, numbers):
+        # one exact query (and exact forces) per check, shared by all widths
+        key = (id(grid), grid.stats["updates"], grid.stats["rebuilds"])
+        if self._ref_key != key:
+            exact = exact_pair_set(grid, potential, numbers)
+            forces = (energy_forces(potential, numbers, exact)[1]
+                      if "force" in self.tolerance else None)
+            self._ref, self._ref_key = (exact, forces), key
+        return self._ref
+
+    def _search(self, grid, potential, numbers):
+        """Smallest width meeting the tolerance: (width or None, its record,
+        widths tried).
+
+        The missed pairs can only shrink as W grows (the W template holds
+        every site of the W - 2 one), so the search starts at the width in
+        use: if it passes, narrower ones are tried until one fails; if not,
+        wider ones until one passes.  For the missed fraction this is the
+        answer of an ascending search from the smallest width, usually for
+        two template scans instead of four; the RMS force error need not be
+        monotone in W (missed forces can cancel), so with a force tolerance
+        the result is the narrowest of the passing widths next to the one in
+        use."""
+        ws = self.widths
+        start = ws.index(self.width) if self.width in ws else 0
+        tried, best, rec_best = [], None, None
+        rec = self.evaluate(grid, potential, numbers, ws[start])
+        tried.append(ws[start])
+        if rec["ok"]:
+            best, rec_best = ws[start], rec
+            for w in reversed(ws[:start]):
+                rec = self.evaluate(grid, potential, numbers, w)
+                tried.append(w)
+                if not rec["ok"]:
+                    break
+                best, rec_best = w, rec
+            return best, rec_best, tried
+        for w in ws[start + 1:]:
+            rec = self.evaluate(grid, potential, numbers, w)
+            tried.append(w)
+            if rec["ok"]:
+                return w, rec, tried
+        return None, rec, tried
+
+    def choose(self, grid, potential, numbers):
+        """Width for the list about to be built on ``grid`` (called by the
+        calculator once per list build, after the grid is up to date).
+
+        Returns
+        -------
+        int or None
+            W, or None for exact mode.
+        """
+        self._builds += 1
+        reason = self._reason(grid)
+        if reason is None:
+            self._since_check += 1
+            return self.width
+        chosen, rec, tried = self._search(grid, potential, numbers)
+        if chosen is None:
+            rec = {"missed_fraction": 0.0, **({"force_rms": 0.0}
+                                              if "force" in self.tolerance else {})}
+        rec.pop("ok", None)
+        self.width = chosen
+        self.history.append({"build": self._builds, "width": chosen,
+                             "reason": reason, "tried": tried, **rec})
+        self._grid, self._grid_rebuilds = grid, grid.stats["rebuilds"]
+        self._cell = grid.box.cell.copy()
+        self._since_check = 1
+        self._ref, self._ref_key = None, None  # release the reference list
+        return chosen
+
+    def __repr__(self):
+        return (f"AutoTemplate(tolerance={self.tolerance}, widths={self.widths}, "
+                f"check_every={self.check_every}, width={self.width})")
