@@ -101,6 +101,23 @@ def _search(arr, col, base, stride, n, q, right):
     return lo
 
 
+@njit(cache=True, inline="always")
+def _overlap(box, base, n, qlo, qhi, a):
+    """First and last of the ``n`` boxes from row ``base`` that can meet
+    [qlo, qhi] along axis ``a``, along which their lows and highs are both
+    monotone (docs/design.md §6): bisection on each."""
+    return (_search(box, 3 + a, base, 1, n, qlo[a], False),
+            _search(box, a, base, 1, n, qhi[a], True) - 1)
+
+
+@njit(cache=True, inline="always")
+def _apart(box, r, qlo, qhi, a, b):
+    """Box ``r`` (lows at columns 0-2, highs at 3-5) misses the query box
+    [qlo, qhi] on axis ``a`` or ``b`` (the third axis was bisected)."""
+    return (box[r, a] > qhi[a] or box[r, 3 + a] < qlo[a]
+            or box[r, b] > qhi[b] or box[r, 3 + b] < qlo[b])
+
+
 @njit(cache=True)
 def _push(cand, ncand, b, m0, m1, m2):
     if ncand >= cand.shape[0]:
@@ -123,31 +140,26 @@ def _block_candidates(cand, qlo, qhi, nb, S1, R2, BB, m0, m1, m2, ncand,
     IA = bmin // (nby * nbz)
     JA = (bmin // nbz) % nby
     KA = bmin % nbz
-    I0 = max(_search(S1, 3, 0, 1, nbx, qlo[0], False), IA)
-    I1 = _search(S1, 0, 0, 1, nbx, qhi[0], True) - 1
+    I0, I1 = _overlap(S1, 0, nbx, qlo, qhi, 0)
+    I0 = max(I0, IA)
     for I in range(I0, I1 + 1):
-        if (S1[I, 1] > qhi[1] or S1[I, 4] < qlo[1]
-                or S1[I, 2] > qhi[2] or S1[I, 5] < qlo[2]):
+        if _apart(S1, I, qlo, qhi, 1, 2):
             continue
         rb = I * nby
-        J0 = _search(R2, 4, rb, 1, nby, qlo[1], False)
+        J0, J1 = _overlap(R2, rb, nby, qlo, qhi, 1)
         if I == IA:
             J0 = max(J0, JA)
-        J1 = _search(R2, 1, rb, 1, nby, qhi[1], True) - 1
         for J in range(J0, J1 + 1):
             r = rb + J
-            if (R2[r, 0] > qhi[0] or R2[r, 3] < qlo[0]
-                    or R2[r, 2] > qhi[2] or R2[r, 5] < qlo[2]):
+            if _apart(R2, r, qlo, qhi, 0, 2):
                 continue
             bb = r * nbz
-            K0 = _search(BB, 5, bb, 1, nbz, qlo[2], False)
+            K0, K1 = _overlap(BB, bb, nbz, qlo, qhi, 2)
             if I == IA and J == JA:
                 K0 = max(K0, KA)
-            K1 = _search(BB, 2, bb, 1, nbz, qhi[2], True) - 1
             for K in range(K0, K1 + 1):
                 b = bb + K
-                if (BB[b, 0] > qhi[0] or BB[b, 3] < qlo[0]
-                        or BB[b, 1] > qhi[1] or BB[b, 4] < qlo[1]):
+                if _apart(BB, b, qlo, qhi, 0, 1):
                     continue
                 cand = _push(cand, ncand, b, m0, m1, m2)
                 ncand += 1

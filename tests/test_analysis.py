@@ -13,7 +13,6 @@ box) and read back by MDAnalysis.
 import argparse
 import io
 import os
-import warnings
 
 import numpy as np
 import pytest
@@ -27,19 +26,15 @@ from ase.geometry.rdf import VolumeNotDefined as ASEVolumeNotDefined  # noqa: E4
 from ase.geometry.rdf import get_rdf  # noqa: E402
 from MDAnalysis.analysis.rdf import InterRDF  # noqa: E402
 
-from ase_mlg import analysis  # noqa: E402
-from ase_mlg.analysis import (RDF, CellTooSmall, VolumeNotDefined,  # noqa: E402
-                              add_rdf_parser, rdf, run_rdf_command)
+from ase_mlg.analysis import RDF, CellTooSmall, VolumeNotDefined, rdf  # noqa: E402
+from ase_mlg.analysis.mda_kernels import fastns_max_cutoff  # noqa: E402
+from ase_mlg.cli.rdf import add_parser as add_rdf_parser  # noqa: E402
+from ase_mlg.cli.rdf import run as run_rdf_command  # noqa: E402
 from ase_mlg.scenes import make_scene  # noqa: E402
+from rdf_helpers import universe  # noqa: E402
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning",
                                         "ignore::UserWarning")
-
-
-def universe(*files):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return mda.Universe(*files)
 
 
 def displaced(atoms, nframes=3, amp=0.1):
@@ -199,7 +194,7 @@ def test_rmax_beyond_cell_raises_like_interrdf():
     with pytest.raises(ValueError, match="rmax"):
         r.run(stop=1)
     # the largest cutoff FastNS accepts is accepted here too
-    limit = analysis._fastns_max_cutoff(np.asarray(u.dimensions, np.float32))
+    limit = fastns_max_cutoff(np.asarray(u.dimensions, np.float32))
     RDF(ow, ow, range=(0.0, limit)).check_range()
 
 

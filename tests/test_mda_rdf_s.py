@@ -1,7 +1,8 @@
 # Copied from MDAnalysisTests analysis/test_rdf_s.py (MDAnalysis 2.11, LGPL-2.1+), with
 # MDAnalysis's InterRDF/InterRDF_s replaced by ase-mlg's RDF/RDF_s and the
-# backend fixture of MDAnalysisTests/analysis/conftest.py defined here (every
-# backend ours supports, 2 workers, plus serial).  The assertions are theirs.
+# backend fixture of MDAnalysisTests/analysis/conftest.py defined here, its
+# parameters from rdf_helpers.backend_params (every backend ours supports,
+# 2 workers, plus serial).  The assertions are theirs.
 # -*- Mode: python; tab-width: 4; indent-tabs-mode:nil; coding:utf-8 -*-
 # vim: tabstop=4 expandtab shiftwidth=4 softtabstop=4 fileencoding=utf-8
 #
@@ -34,18 +35,12 @@ from MDAnalysis.analysis.rdf import nested_array_sum
 from ase_mlg.analysis import RDF as InterRDF
 from ase_mlg.analysis import RDF_s as InterRDF_s
 from MDAnalysisTests.util import distopia_conditional_backend
+from rdf_helpers import backend_params
 
 from MDAnalysisTests.datafiles import GRO_MEMPROT, XTC_MEMPROT
 
 
-def _params_for_cls(cls):
-    from MDAnalysis.lib.util import is_installed
-    params = [{"backend": b, "n_workers": 2} for b in cls.get_supported_backends()
-              if b != "serial" and is_installed(b)]
-    return params + [{"backend": "serial"}]
-
-
-@pytest.fixture(scope="module", params=_params_for_cls(InterRDF_s))
+@pytest.fixture(scope="module", params=backend_params(InterRDF_s))
 def client_InterRDF_s(request):
     return request.param
 

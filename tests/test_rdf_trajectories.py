@@ -13,25 +13,18 @@ import subprocess
 import sys
 import textwrap
 import time
-import warnings
 
 import numpy as np
 import pytest
 
-import MDAnalysis as mda
 from MDAnalysis.analysis.rdf import InterRDF, InterRDF_s
 from MDAnalysisTests import datafiles
 
 from ase_mlg.analysis import RDF, RDF_s, DistributedBackend
+from rdf_helpers import universe
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning",
                                         "ignore::UserWarning")
-
-
-def universe(*files):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return mda.Universe(*files)
 
 
 def same_counts(ref, got):
@@ -225,7 +218,7 @@ def test_fork_safe_threading_layer_and_prange_scaling():
     code = textwrap.dedent("""
         import ase_mlg, numba, multiprocessing
         import numpy as np
-        from ase_mlg.analysis import _mda_counts  # noqa: F401 (parallel kernel module)
+        from ase_mlg.analysis.mda_kernels import mda_counts  # noqa: F401 (parallel kernel module)
         from numba import njit, prange
         @njit(parallel=True)
         def total(a):
@@ -349,7 +342,7 @@ def test_cli_scheduler(cluster, tmp_path):
     ref = InterRDF(ow, ow, nbins=16, range=(0, 8)).run()
     np.testing.assert_array_equal(np.loadtxt(out)[:, 2], ref.results.count)
     # an address nobody answers: one line naming the option
-    from ase_mlg.analysis import _connect
+    from ase_mlg.cli.rdf import _connect
     with pytest.raises(ValueError, match=r"^--scheduler: cannot connect to") as info:
         _connect("tcp://127.0.0.1:9", timeout=1)
     assert "\n" not in str(info.value)
