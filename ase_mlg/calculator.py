@@ -10,7 +10,7 @@ list built with a Verlet ``skin``:
   no pair outside it can have come within the cutoff, so reusing it is exact.
 * ``template=W`` (odd int): the list holds the pairs with
   ``d < cutoff + skin`` found in Boris's W x W x W half template
-  (DESIGN 2.6).  Fast and approximate: the pairs the template misses are the
+  (docs/design.md §7).  Fast and approximate: the pairs the template misses are the
   price, and :mod:`ase_mlg.tradeoff` measures it.
 * ``template="auto"``: W is the smallest width that meets ``tolerance``,
   chosen and re-checked against the exact query by

@@ -5,7 +5,7 @@ coordinates ``f`` of the (completed) cell scaled by the cell heights ``h``
 (distance between opposite faces, Å).  For an orthorhombic cell aligned with
 the axes ``g`` is the Cartesian position; for a triclinic cell the monotone
 order lives in fractional space while every distance is Cartesian
-(DESIGN 2.3).  Along a periodic axis the coordinate is wrapped into one period
+(docs/design.md §3).  Along a periodic axis the coordinate is wrapped into one period
 ``[origin, origin + h)``, the origin sitting in the widest empty gap so that a
 slab with vacuum is not cut through the middle.
 
@@ -235,7 +235,7 @@ def grid_shape(extent, periodic, natoms):
     the extremes).  We solve ``prod(layers) = natoms`` for d, round, and fix
     up so that ``NX*NY*NZ >= natoms`` with as few holes as rounding allows.
     A monolayer has ``e_z = 0`` and so gets NZ = 1, a chain NY = NZ = 1
-    (DESIGN 2.3).
+    (docs/design.md §3).
     """
     n = int(natoms)
     if n <= 1:

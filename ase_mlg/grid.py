@@ -9,7 +9,7 @@ on the grid coordinates of :mod:`ase_mlg.geometry`.  Sites without an atom
 are *holes*: they carry coordinates that respect the inequalities and never
 interact.
 
-Construction (DESIGN 2.1) is one recursive split, parameterised by the rule
+Construction (docs/design.md §3) is one recursive split, parameterised by the rule
 that picks the axis:
 
 * ``method="kd"`` (default): split the site box along its longest logical
@@ -240,7 +240,7 @@ class MLG:
         Construction: recursive median split (default) or Boris's sort.
     shape : 3 ints, optional
         Force the grid shape (``NX*NY*NZ >= N``); by default it follows the
-        occupied extent and dimensionality of the atoms (DESIGN 2.3).
+        occupied extent and dimensionality of the atoms (docs/design.md §3).
     sweep_cap : int
         Maximum swap sweeps per update before falling back to a rebuild.
     monitor_every : int
@@ -493,7 +493,7 @@ class MLG:
 
         A line's phase is the mean offset of its stored coordinates from the
         evenly spaced positions ``(i + 1/2) L / n``; seam swaps preserve it,
-        so it follows the line's centre of mass (DESIGN 2.4).  Adjacent lines
+        so it follows the line's centre of mass (docs/design.md §5).  Adjacent lines
         whose phases differ by p spacings pair site i with site i - p.
         """
         c = self._coords.reshape(self.shape + (3,))

@@ -1,4 +1,4 @@
-"""Exact range queries on a Monotonic Logical Grid (DESIGN 2.5).
+"""Exact range queries on a Monotonic Logical Grid (docs/design.md §6).
 
 The site array of an :class:`~ase_mlg.grid.MLG` is cut into aligned blocks
 (``bx x by x bz`` sites, the last block of an axis possibly shorter).  For

@@ -1,4 +1,4 @@
-"""The scenes of DESIGN 4, built in code, and synthetic motion for the grid.
+"""The scenes of docs/design.md §9, built in code, and synthetic motion for the grid.
 
 Every test, validation script, benchmark and the demo draws its systems from
 here, so "the LJ liquid" means the same atoms everywhere.  Sizes are
@@ -25,7 +25,7 @@ def _fcc_repeats(natoms):
 
 def random_points(natoms, density, seed=0):
     """Uniform random points in a periodic cube at ``density`` (Å^-3);
-    the "random liquid" of DESIGN 2.1 when density is 0.8 / sigma^3."""
+    the "random liquid" of docs/design.md §3 when density is 0.8 / sigma^3."""
     rng = np.random.default_rng(seed)
     L = (natoms / density) ** (1 / 3)
     return Atoms("Ar%d" % natoms, positions=rng.random((natoms, 3)) * L,
@@ -127,7 +127,7 @@ SCENES = {
 
 
 def make_scene(name, natoms=None, **kwargs):
-    """Build a named scene of DESIGN 4 (``natoms`` ignored by ``small``)."""
+    """Build a named scene of docs/design.md §9 (``natoms`` ignored by ``small``)."""
     try:
         builder = SCENES[name]
     except KeyError:

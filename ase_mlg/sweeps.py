@@ -1,12 +1,12 @@
 """Keeping the MLG in order as atoms move: the follow and the swap sweeps.
 
-Maintenance (DESIGN 2.2, Boris 1985 sec. III): after atoms move, odd-even
+Maintenance (docs/design.md §4, Boris 1985 sec. III): after atoms move, odd-even
 swap sweeps along every line of every axis restore the order; an interior
 swap strictly raises sum(i*X + j*Y + k*Z) and leaves sum |g|^2 unchanged, a
 seam swap lowers sum |g|^2, so the sweeps terminate (docs/design.md §4).  A cap on
 sweeps falls back to a rebuild.
 
-Periodic axes (DESIGN 2.4) -- the choice made here
+Periodic axes (docs/design.md §5) -- the choice made here
 ---------------------------------------------------
 A periodic line is *cyclic*: the site after ``NX-1`` is ``0`` one period
 further on, and the order includes the seam condition
@@ -97,7 +97,7 @@ def _axis_pass(sites, coords, nx, ny, nz, axis, period, act, touched):
             if period > 0.0:
                 # the seam: site n-1 precedes site 0 of the next period; a
                 # swap shifts both stored coordinates by one period so they
-                # stay continuous in space (DESIGN 2.4)
+                # stay continuous in space (docs/design.md §5)
                 last = first + (n - 1) * stride
                 if coords[last, axis] > coords[first, axis] + period:
                     _swap_sites(sites, coords, first, last)

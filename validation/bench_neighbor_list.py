@@ -1,6 +1,6 @@
 """Benchmark: ase_mlg.neighbor_list against vesin, matscipy and ASE.
 
-One run times every tool side by side on the DESIGN section 4 scenes, checks
+One run times every tool side by side on the scenes of docs/design.md §9, checks
 that all tools return the same pair set, measures peak memory per tool (each
 in its own subprocess, high-water mark of the resident set reset just before
 the call), and the time to *update* a list after one MD-like step
@@ -44,7 +44,7 @@ SIGMA = 3.405
 # --------------------------------------------------------------------------
 
 def scene(name, n, seed=0):
-    """(atoms, cutoff) for a DESIGN-4 scene of about n atoms."""
+    """(atoms, cutoff) for a scene of docs/design.md §9 of about n atoms."""
     import ase
     from ase.build import bulk
     from ase.cluster import Octahedron

@@ -18,9 +18,9 @@ Three measurements:
    for every particle, the particles *outside* its 5x5x5 logical template,
    binned by physical distance in shells of 0.1 spacing (Boris's 1 Å shells
    with his 10 Å spacing); with and without a ninth plane of holes.
-3. **Sort vs recursive-split construction** (DESIGN 2.1): share of the true
+3. **Sort vs recursive-split construction** (docs/design.md §3): share of the true
    pairs inside the W = 5, 7, 9 templates for a random liquid across N, at
-   Boris's cutoff regime (0.9 spacing) and the LJ cutoff of DESIGN 4
+   Boris's cutoff regime (0.9 spacing) and the LJ cutoff of docs/design.md §9
    (2.5 sigma = 2.32 spacings).
 
 Distances are in units of the initial spacing Delta (Boris: 10 Å, i.e.
@@ -163,12 +163,12 @@ def cumulative_within(stats, r, key="outside"):
 
 
 # --------------------------------------------------------------------------
-# 3. construction: sort vs recursive split (DESIGN 2.1)
+# 3. construction: sort vs recursive split (docs/design.md §3)
 # --------------------------------------------------------------------------
 
 def construction_statistics(sizes, cutoffs_in_spacings, widths=(5, 7, 9)):
     """Template share (found / true pairs) for kd and sort grids."""
-    rho = 0.8 / 3.405 ** 3  # random liquid of DESIGN 2.1, Å^-3
+    rho = 0.8 / 3.405 ** 3  # random liquid of docs/design.md §3, Å^-3
     spacing = rho ** (-1 / 3)
     rows = []
     for n in sizes:
@@ -345,7 +345,7 @@ def sweeps_section(sweeps, args, figure=True):
         "His run length and number of runs are not given, and the runs differ "
         "in details he does not describe: how a particle crossing a periodic "
         "face re-enters its line (ours: cyclic lines with a seam swap, README and "
-        "DESIGN 2.4), and whether the grid is ever rebuilt (ours rebuilds when "
+        "docs/design.md §5), and whether the grid is ever rebuilt (ours rebuilds when "
         "periodic lines fall out of register: "
         + ", ".join(f"{reb} time(s) at {dl} Δ" for dl, (_, reb) in sweeps.items())
         + f" in {args.seeds} x {args.steps} steps; a rebuild returns the grid to "
@@ -459,7 +459,7 @@ def report(sweeps, runs, cons, args, elapsed):
         f"counting error on {int(n05)} pairs within 0.5 Δ).",
         f"* *Not the periodic seam.* {100 * seam05:.0f} % of our uncounters within "
         f"0.5 Δ straddle a periodic face in x or y ({100 * seam2:.0f} % within "
-        "2 Δ): the cyclic lines of DESIGN 2.4 do not make them.",
+        "2 Δ): the cyclic lines of docs/design.md §5 do not make them.",
         "* *Left open.* Boris's factor of 100 and his 3 Å floor are readings of a "
         "log-scale histogram we have only as text; he does not give his run "
         "length, the order of his swap passes, or how his periodic lines close; "
@@ -485,13 +485,13 @@ def report(sweeps, runs, cons, args, elapsed):
                      f"{holes['outside'][k]:.2e} | {share[k]:.2e} |")
     lines += [
         "",
-        "## 3. Sort vs recursive-split construction across N (DESIGN 2.1)",
+        "## 3. Sort vs recursive-split construction across N (docs/design.md §3)",
         "",
         "Random liquid (uniform random points at 0.8 σ⁻³, σ = 3.405 Å), share of "
         "the true pairs within rc that the W^3 template finds, freshly built grid. "
         "rc = 0.9 Δ is Boris's regime (\"a 5x5x5 template is adequate provided "
         "the critical radius is somewhat less than the average separation\"); "
-        "rc = 2.32 Δ is the LJ cutoff 2.5 σ of DESIGN 4.",
+        "rc = 2.32 Δ is the LJ cutoff 2.5 σ of docs/design.md §9.",
         "",
         "![construction](boris/construction.png)",
         "",
@@ -513,7 +513,7 @@ def report(sweeps, runs, cons, args, elapsed):
         "",
         f"At rc = 2.32 Δ the W = 7 share of the sort construction falls from "
         f"{s_lo['W7']:.3f} (N = {nmin}) to {s_hi['W7']:.3f} (N = {nmax}); the kd "
-        f"construction's stays at {k_lo['W7']:.3f} → {k_hi['W7']:.3f} (DESIGN 2.1 "
+        f"construction's stays at {k_lo['W7']:.3f} → {k_hi['W7']:.3f} (docs/design.md §3 "
         "quotes 0.90 → 0.69 for sort and 0.994 for kd at N = 1k-64k: reproduced). "
         "Rows of a sorted plane are independent samples, so neighbouring rows "
         "drift out of alignment by O(sqrt(NX)) spacings as N grows; the kd split "

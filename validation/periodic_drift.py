@@ -1,6 +1,6 @@
 """Do sweeps per step and template quality stay flat over a long periodic run?
 
-DESIGN 2.4: on a periodic axis each line's window can wander as atoms
+docs/design.md §5: on a periodic axis each line's window can wander as atoms
 circulate, and lines out of register lose template quality.  The grid keeps
 stored coordinates continuous across faces (seam swaps, no jumps) and a phase
 monitor rebuilds when adjacent lines are more than ``max_phase_lag`` spacings
