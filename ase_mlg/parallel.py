@@ -67,7 +67,7 @@ if "NUMBA_THREADING_LAYER" not in os.environ:
     numba.config.THREADING_LAYER = "forksafe"
 
 __all__ = ["THRESHOLDS", "use_threads", "threads_for", "serial_and_parallel",
-           "run_chunks"]
+           "run_chunks", "reduction_chunks"]
 
 #: Work sizes from which kernels run threaded (measured on 2 and 16 cores:
 #: below these, thread hand-offs cost more than they save).
@@ -84,6 +84,14 @@ def threads_for(kind, size):
     """Number of threads for work of ``size`` items of ``kind``: 1 below
     the threshold, numba's thread count above it."""
     return max(1, numba.get_num_threads()) if use_threads(kind, size) else 1
+
+
+def reduction_chunks(n, per_chunk):
+    """Chunks for a threaded reduction of ``n`` items into one buffer per
+    chunk (the RDF histograms): eight a thread to balance them, and no more
+    than one per ``per_chunk`` items so the buffers stay small.  Integer
+    counts do not depend on the chunking."""
+    return int(max(1, min(8 * numba.get_num_threads(), n // per_chunk + 1)))
 
 
 def serial_and_parallel(func, cache=True, **flags):

@@ -1,8 +1,9 @@
 """The pair source of both RDF front ends: one MLG kept across frames
 (docs/design.md §10), and how the count kernels split its pairs."""
 
-from numba import get_num_threads, njit
+from numba import njit
 
+from ..parallel import reduction_chunks
 from ..query import exact_pairs
 from ..template import template_pairs
 from ..tracker import GridTracker
@@ -39,9 +40,9 @@ class PairSource:
 
 
 def n_chunks(npair):
-    """Chunks for the parallel histogram kernels: enough to balance the
-    threads, few enough that the per-chunk histograms stay small."""
-    return int(max(1, min(8 * get_num_threads(), npair // 8192 + 1)))
+    """Chunks for the threaded histogram kernels (the package's threading
+    policy, :func:`ase_mlg.parallel.reduction_chunks`)."""
+    return reduction_chunks(npair, 8192)
 
 
 @njit(cache=True, inline="always")
