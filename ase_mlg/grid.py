@@ -1,4 +1,4 @@
-"""The Monotonic Logical Grid: construction, maintenance, invariants.
+"""The Monotonic Logical Grid: construction, invariants, a read-only view.
 
 N atoms live on the sites ``(i, j, k)`` of an ``(NX, NY, NZ)`` array so that
 (Boris 1985, eq. 3.1)::

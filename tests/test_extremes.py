@@ -1,13 +1,14 @@
 """Numerical stability at the extremes (issue 7): nothing silently wrong.
 
-Every check of ``validation/extremes.py`` (which also writes the report
-``validation/extremes.md``) runs here, plus hypothesis property tests against
-``ase.neighborlist.neighbor_list`` and ``ase.calculators.lj.LennardJones``.
-Known failures in modules this suite may not edit are ``xfail(strict=True)``
-so that they turn red when fixed.
+Every extreme case of ``extreme_cases.py`` (geometry, dynamics, arithmetic)
+and ``bad_input_cases.py`` runs here as ``test_extreme``, plus hypothesis
+property tests against ``ase.neighborlist.neighbor_list`` and
+``ase.calculators.lj.LennardJones``.  ``validation/extremes.py`` runs
+``test_extreme`` and writes what each case measured to
+``validation/reports/extremes.md``.  Known failures in modules this suite may
+not edit are ``xfail(strict=True)`` so that they turn red when fixed.
 """
 
-import importlib.util
 import math
 import os
 import subprocess
@@ -21,31 +22,33 @@ from hypothesis import strategies as st
 
 from ase_mlg import MLG, MLGCalculator, NeighborList, neighbor_list
 
-_PATH = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
-                     "validation", "extremes.py")
-_spec = importlib.util.spec_from_file_location("extremes_checks", _PATH)
-E = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(E)
+import bad_input_cases
+import extreme_cases as E
 
 # the 1e6-atom sum is for the report; here a 108,000-atom system (~2 s)
 os.environ.setdefault("EXTREMES_BIG_N", "108000")
 
+CHECKS = E.CHECKS + bad_input_cases.CHECKS
 XFAIL = E.KNOWN_FAILURES  # name -> reason (module this suite may not edit)
 
 
 def _params():
     out = []
-    for group, name, f in E.CHECKS:
+    for group, name, f in CHECKS:
         marks = []
         if name in XFAIL:
             marks.append(pytest.mark.xfail(strict=True, reason=XFAIL[name]))
-        out.append(pytest.param(f, id=f"{group}: {name}", marks=marks))
+        out.append(pytest.param(group, name, f, id=f"{group}: {name}", marks=marks))
     return out
 
 
-@pytest.mark.parametrize("check", _params())
-def test_extreme(check):
+@pytest.mark.parametrize("group,name,check", _params())
+def test_extreme(group, name, check, record_property):
+    """One extreme case; ``validation/extremes.py`` reads the recorded
+    ``extreme`` (group, name) and ``result`` (what it measured)."""
+    record_property("extreme", (group, name))
     res = check()
+    record_property("result", res)
     assert res.startswith("pass") or res.startswith("clear error"), res
 
 
@@ -192,5 +195,5 @@ def test_float32_energy_equals_float64_of_same_values():
 def test_cli_timeouts_do_not_hang():
     r = subprocess.run([sys.executable, "-m", "ase_mlg.cli", "rdf", "/no/such.xyz"],
                        capture_output=True, text=True, timeout=60,
-                       env=dict(os.environ, PYTHONPATH=os.path.dirname(os.path.dirname(_PATH))))
+                       env=E.subprocess_env())
     assert r.returncode != 0 and len(r.stderr.strip().splitlines()) == 1

@@ -12,6 +12,8 @@ from ase_mlg.geometry import grid_shape
 from ase_mlg.template import half_template, template_pairs
 from ase_mlg.scenes import PersistentWalk, make_scene, random_points, slab
 
+import naive
+
 
 def check_valid(grid, natoms):
     """Every atom exactly once, eq. 3.1 checked independently of the
@@ -235,22 +237,17 @@ def test_template_enumerates_each_pair_once(pbc):
     grid = MLG(x, cell, pbc)
     rc = 3.5
     i, j, S, D = template_pairs(grid, 2 * max(grid.shape) + 1, rc)
-    # brute force over images within range
     found = {(min(a, b), max(a, b)) for a, b in zip(i, j)}
     assert len(found) == len(i)  # each unordered pair once
     assert np.allclose(D, x[j] - x[i] + S @ cell)
     assert (np.linalg.norm(D, axis=1) < rc).all()
-    ranges = [range(-2, 3) if p else range(0, 1) for p in pbc]
-    truth = set()
-    for s in itertools.product(*ranges):
-        d = np.linalg.norm(x[None, :, :] - x[:, None, :] + np.array(s) @ cell, axis=2)
-        a, b = np.nonzero(d < rc)
-        truth |= {(min(p, q), max(p, q)) for p, q in zip(a, b) if p != q}
+    truth = {(min(p, q), max(p, q)) for p, q, _ in naive.pairs(x, cell, pbc, rc)
+             if p != q}
     assert found == truth
 
 
 def test_template_quality_does_not_decline_with_n():
-    """DESIGN 2.1 / issue: random liquid at 0.8 sigma^-3, rc = 2.5 sigma: the
+    """docs/design.md §3 / issue: random liquid at 0.8 sigma^-3, rc = 2.5 sigma: the
     default construction keeps >= 0.99 of true pairs in the 7x7x7 template at
     N = 1k, 8k, 64k; Boris's sort construction is reported beside it."""
     rc = 2.5
@@ -312,46 +309,6 @@ def test_bad_arguments():
         template_pairs(grid, 3, -1.0)
 
 
-def reference_sweeps(sites, coords, shape, periods, cap):
-    """Boris's odd-even sweeps phase by phase in numpy (the definition the
-    line-wise kernels with skipped in-order lines must reproduce)."""
-    S = sites.reshape(shape).copy()
-    C = coords.reshape(tuple(shape) + (3,)).copy()
-    nsweep = nswap = 0
-    while True:
-        swaps = 0
-        for axis in range(3):
-            n = shape[axis]
-            if n < 2:
-                continue
-            Sa, Ca = np.moveaxis(S, axis, 0), np.moveaxis(C, axis, 0)  # views
-            for parity in (0, 1):
-                lo = np.arange(parity, n - 1, 2)
-                bad = Ca[lo, ..., axis] > Ca[lo + 1, ..., axis]
-                idx = np.nonzero(bad)
-                i0, rest = lo[idx[0]], idx[1:]
-                s0, s1 = Sa[(i0,) + rest].copy(), Sa[(i0 + 1,) + rest].copy()
-                c0, c1 = Ca[(i0,) + rest].copy(), Ca[(i0 + 1,) + rest].copy()
-                Sa[(i0,) + rest], Sa[(i0 + 1,) + rest] = s1, s0
-                Ca[(i0,) + rest], Ca[(i0 + 1,) + rest] = c1, c0
-                swaps += len(i0)
-            if periods[axis] > 0:
-                bad = Ca[-1, ..., axis] > Ca[0, ..., axis] + periods[axis]
-                f, l = Ca[0][bad].copy(), Ca[-1][bad].copy()
-                f[:, axis] += periods[axis]
-                l[:, axis] -= periods[axis]
-                Ca[0][bad], Ca[-1][bad] = l, f
-                s0 = Sa[0][bad].copy()
-                Sa[0][bad], Sa[-1][bad] = Sa[-1][bad], s0
-                swaps += int(bad.sum())
-        if swaps == 0:
-            return S.ravel(), C.reshape(-1, 3), nsweep, nswap
-        nsweep += 1
-        nswap += swaps
-        if nsweep >= cap:
-            return S.ravel(), C.reshape(-1, 3), nsweep, nswap
-
-
 @pytest.mark.parametrize("pbc", [True, (True, False, True), False])
 def test_sweeps_equal_boris_phase_order_serial_and_threaded(pbc, monkeypatch):
     """The line-wise passes that skip lines in order give bit for bit the
@@ -368,7 +325,7 @@ def test_sweeps_equal_boris_phase_order_serial_and_threaded(pbc, monkeypatch):
     coords = grid._coords.copy()
     coords[occ] = g[grid._sites[occ]]  # scrambled, some sites far off
     shape = np.array(grid.shape)
-    ref = reference_sweeps(grid._sites, coords, shape, grid._periods, 64)
+    ref = naive.sweeps(grid._sites, coords, shape, grid._periods, 64)
     assert ref[2] > 2 and ref[3] > 100
     for threshold in (10 ** 9, 1):  # serial, then threaded kernels
         monkeypatch.setitem(THRESHOLDS, "sites", threshold)
@@ -379,7 +336,7 @@ def test_sweeps_equal_boris_phase_order_serial_and_threaded(pbc, monkeypatch):
 
 
 def test_periodic_run_stays_flat():
-    """DESIGN 2.4: over 2,000 steps of liquid-like periodic motion with atoms
+    """docs/design.md §5: over 2,000 steps of liquid-like periodic motion with atoms
     crossing the faces (rms travel ~ 10 spacings), sweeps per step and the
     7x7x7 template share show no upward/downward trend."""
     n, rc = 2000, 2.5

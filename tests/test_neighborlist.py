@@ -27,6 +27,8 @@ from ase_mlg import neighborlist as nl
 from ase_mlg.blocks import BlockIndex
 from ase_mlg.query import find_pairs
 
+import naive
+
 SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow],
                 derandomize=True)
 BORDER = 1e-9
@@ -37,38 +39,10 @@ BORDER = 1e-9
 # --------------------------------------------------------------------------
 
 def brute_force(positions, cell, pbc, pair_cut, self_interaction):
-    """All (i, j, S, d, D) with d < pair_cut[i, j], looping over every image
-    shift that can matter."""
-    pos = np.asarray(positions, float)
-    n = len(pos)
-    if n == 0:
-        return {}
-    cell = np.asarray(cell, float)
-    cmax = pair_cut.max()
-    ranges = []
-    full = ase.cell.Cell(cell).complete()
-    frac = pos @ np.linalg.inv(full)
-    heights = 1.0 / np.linalg.norm(np.linalg.inv(full), axis=0)
-    for a in range(3):
-        if pbc[a]:
-            spread = frac[:, a].max() - frac[:, a].min()
-            k = int(np.ceil(cmax / heights[a] + spread)) + 1
-            ranges.append(np.arange(-k, k + 1))
-        else:
-            ranges.append(np.array([0]))
-    shifts = np.stack(np.meshgrid(*ranges, indexing="ij"), -1).reshape(-1, 3)
-    out = {}
-    sc = shifts @ cell
-    for i in range(n):
-        for j in range(n):
-            D = pos[j] - pos[i] + sc
-            d = np.sqrt((D * D).sum(1))
-            for s in np.flatnonzero(d < pair_cut[i, j] + BORDER):
-                S = tuple(int(x) for x in shifts[s])
-                if i == j and S == (0, 0, 0) and not self_interaction:
-                    continue
-                out[(i, j, S)] = (d[s], D[s], pair_cut[i, j])
-    return out
+    """naive.pairs, borderline pairs included, as ``{(i, j, S): (d, D,
+    cutoff)}``."""
+    ref = naive.pairs(positions, cell, pbc, pair_cut, self_interaction, slack=BORDER)
+    return {k: (d, D, pair_cut[k[0], k[1]]) for k, (d, D) in ref.items()}
 
 
 def as_dict(i, j, S, d, D, cut):
@@ -558,9 +532,6 @@ def _lists(cls, cut, atoms, **kw):
 
 
 def _sorted_cases():
-    rng = np.random.default_rng(3)
-    gas = ase.Atoms("Ar60", positions=rng.random((60, 3)) * 20, cell=[20] * 3,
-                    pbc=True)
     return [
         # the issue's case: an atom sees several images of one neighbour
         (bulk("Si", "diamond", a=5.43), 2.6),

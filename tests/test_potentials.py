@@ -1,7 +1,6 @@
 """Tests for ase_mlg.potentials: agreement with ASE's LJ and Morse
 calculators, finite differences, a plain-Python reference, bad input."""
 
-import math
 import os
 import subprocess
 import sys
@@ -23,6 +22,8 @@ from hypothesis import strategies as st
 from ase_mlg import potentials as P
 from ase_mlg.potentials import (LennardJones, Morse, PairPotential,
                                 lennard_jones_mixture)
+
+import naive
 
 AR = dict(sigma=3.405, epsilon=0.0104, rc=8.5)
 CU = dict(epsilon=0.35, r0=2.55, rho0=6.0, rcut1=1.9, rcut2=2.7)
@@ -279,61 +280,14 @@ def test_virial_is_minus_strain_derivative(name):
 
 # ---------------------------------------------------------------- references
 
-def ref_lj(r, sigma, epsilon, rc):
-    """Plain-Python shifted LJ pair energy."""
-    if r >= rc:
-        return 0.0
-    u = lambda x: 4 * epsilon * ((sigma / x) ** 12 - (sigma / x) ** 6)
-    return u(r) - u(rc)
-
-
-def ref_lj_smooth(r, sigma, epsilon, rc, ro):
-    if r >= rc:
-        return 0.0
-    u = 4 * epsilon * ((sigma / r) ** 12 - (sigma / r) ** 6)
-    if r < ro:
-        return u
-    fc = ((rc**2 - r**2) ** 2 * (rc**2 + 2 * r**2 - 3 * ro**2)
-          / (rc**2 - ro**2) ** 3)
-    return u * fc
-
-
-def ref_morse(r, epsilon, r0, rho0, rcut1, rcut2):
-    r1, r2 = rcut1 * r0, rcut2 * r0
-    if r >= r2:
-        return 0.0
-    e = epsilon * (math.exp(-2 * rho0 * (r / r0 - 1))
-                   - 2 * math.exp(-rho0 * (r / r0 - 1)))
-    if r <= r1:
-        return e
-    s = 1 - (r - r1) / (r2 - r1)
-    return e * (6 * s**5 - 15 * s**4 + 10 * s**3)
-
-
 SIGMA = {'Ar': 3.405, 'Kr': 3.65, 'Xe': 3.98}
 EPSILON = {'Ar': 0.0104, 'Kr': 0.0141, 'Xe': 0.0194}
 
 
 def ref_mixture_pair(r, a, b, rc=None):
-    sigma = (SIGMA[a] + SIGMA[b]) / 2
-    epsilon = math.sqrt(EPSILON[a] * EPSILON[b])
-    return ref_lj(r, sigma, epsilon, 3 * sigma if rc is None else rc)
-
-
-def brute_force_energy(atoms, pair_energy, images=0):
-    """Double loop over atoms (and periodic images up to +-images)."""
-    pos, cell = atoms.positions, atoms.cell[:]
-    syms = atoms.get_chemical_symbols()
-    rng = range(-images, images + 1)
-    total = 0.0
-    for a in range(len(atoms)):
-        for b in range(len(atoms)):
-            for s in [(x, y, z) for x in rng for y in rng for z in rng]:
-                if a == b and s == (0, 0, 0):
-                    continue
-                r = np.linalg.norm(pos[b] + np.dot(s, cell) - pos[a])
-                total += 0.5 * pair_energy(r, syms[a], syms[b])
-    return total
+    """naive.lj of the Lorentz-Berthelot pair a-b, cut at 3 sigma_ab or rc."""
+    sigma, epsilon = naive.lorentz_berthelot(SIGMA[a], SIGMA[b], EPSILON[a], EPSILON[b])
+    return naive.lj(r, sigma, epsilon, 3 * sigma if rc is None else rc)
 
 
 def test_mixture_cluster_matches_brute_force():
@@ -345,7 +299,7 @@ def test_mixture_cluster_matches_brute_force():
     assert pot.species == ('Ar', 'Kr', 'Xe')
     assert pot.cutoff == pytest.approx(3 * 3.98)
     res = run(pot, atoms)
-    ref = brute_force_energy(atoms, ref_mixture_pair)
+    ref = naive.energy(atoms, ref_mixture_pair)
     assert res['energy'] == pytest.approx(ref, rel=E_RTOL)
 
 
@@ -357,8 +311,8 @@ def test_mixture_periodic_matches_brute_force():
                                 {'Ar': 0.0104, 'Kr': 0.0141}, rc=9.0)
     assert np.all(pot.cutoffs == 9.0)
     res = run(pot, atoms)
-    ref = brute_force_energy(atoms, lambda r, a, b: ref_mixture_pair(
-        r, a, b, rc=9.0), images=3)
+    ref = naive.energy(atoms, lambda r, a, b: ref_mixture_pair(
+        r, a, b, rc=9.0), cutoff=9.0)
     assert res['energy'] == pytest.approx(ref, rel=E_RTOL)
 
 
@@ -373,10 +327,10 @@ def test_mixture_reduces_to_lennard_jones_for_one_species():
 
 REF_POTS = {
     'lj': (lambda: LennardJones(**AR),
-           lambda r, a, b: ref_lj(r, **AR)),
+           lambda r, a, b: naive.lj(r, **AR)),
     'lj_smooth': (lambda: LennardJones(**AR, smooth=True),
-                  lambda r, a, b: ref_lj_smooth(r, **AR, ro=0.66 * 8.5)),
-    'morse': (lambda: Morse(**CU), lambda r, a, b: ref_morse(r, **CU)),
+                  lambda r, a, b: naive.lj_smooth(r, **AR, ro=0.66 * 8.5)),
+    'morse': (lambda: Morse(**CU), lambda r, a, b: naive.morse(r, **CU)),
     'mixture': (lambda: lennard_jones_mixture(SIGMA, EPSILON),
                 ref_mixture_pair),
 }
@@ -448,7 +402,7 @@ def test_per_pair_cutoffs_and_index_types():
 def test_self_image_pair_has_energy_but_no_force():
     pot = LennardJones(**AR)
     res = pot.evaluate([18], [0], [0], [[4.0, 0.0, 0.0]])
-    assert res['energy'] == pytest.approx(ref_lj(4.0, **AR))
+    assert res['energy'] == pytest.approx(naive.lj(4.0, **AR))
     assert res['energies'][0] == res['energy']
     np.testing.assert_array_equal(res['forces'], 0.0)
     assert res['virial'][0, 0] != 0.0

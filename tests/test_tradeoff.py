@@ -22,7 +22,7 @@ METAL = {"copper", "sheared", "slab", "small", "nanoparticle"}
 
 
 def potential_for(name):
-    if name in METAL:  # Cu-like LJ, rc 5 Å (DESIGN 4)
+    if name in METAL:  # Cu-like LJ, rc 5 Å (docs/design.md §9)
         return LennardJones(sigma=2.3, epsilon=0.4, rc=5.0)
     if name == "mixture":  # per-pair cutoffs 3 sigma_AB: 10.2 / 10.6 / 10.95 Å
         return lennard_jones_mixture(sigma={"Ar": 3.405, "Kr": 3.65},

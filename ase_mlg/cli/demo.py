@@ -34,8 +34,23 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
     steps : int
         Steps of liquid-like motion (velocity-persistent random walk of
         0.02 mean spacings rms per step, unwrapped across periodic faces).
+    seed : int
+        Random seed of the liquid, the motion and the momenta.
+    out : file
+        Where the narration goes (progress bars only if it is a terminal).
     md_steps : int
         Steps of NVE molecular dynamics with MLGCalculator (0 skips it).
+
+    Returns
+    -------
+    dict
+        The numbers the narration reports: ``natoms``, ``box`` and ``rc``
+        (Å), ``shape``, ``holes`` and ``build_seconds`` of the grid,
+        ``steps``, ``sweeps`` (mean, min, max per step), ``swaps_per_step``,
+        ``rebuilds``, ``step_seconds_per_atom`` (walk included),
+        ``monotone`` (after the walk), ``true_pairs`` and
+        ``template_quality`` ({W: share of the true pairs found}), and
+        ``md``: :func:`md_demo`'s record (None when ``md_steps`` is 0).
     """
     from tqdm import tqdm
 
@@ -55,8 +70,9 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
         "compiles them, some seconds, and caches them on disk)...")
     t0 = time.perf_counter()
     grid = MLG.from_atoms(atoms)
+    t_build = time.perf_counter() - t0
     say(f"grid {grid.shape} ({grid.nholes} holes), built in "
-        f"{1e3 * (time.perf_counter() - t0):.1f} ms (includes loading compiled kernels)")
+        f"{1e3 * t_build:.1f} ms (includes loading compiled kernels)")
     walk = PersistentWalk(atoms.positions, 0.02 * spacing, seed=seed)
     sweeps = []
     t0 = time.perf_counter()
@@ -67,26 +83,47 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
     dt = time.perf_counter() - t0
     sweeps = np.array(sweeps)
     st = grid.stats
+    rec = dict(natoms=len(atoms), box=float(atoms.cell[0, 0]), rc=rc,
+               shape=tuple(int(n) for n in grid.shape), holes=int(grid.nholes),
+               build_seconds=t_build, steps=steps,
+               sweeps=dict(mean=float(sweeps.mean()), min=int(sweeps.min()),
+                           max=int(sweeps.max())),
+               swaps_per_step=st['swaps'] / steps, rebuilds=st['rebuilds'],
+               step_seconds_per_atom=dt / steps / len(atoms),
+               monotone=bool(grid.is_monotone()))
     say(f"{steps} updates: {sweeps.mean():.2f} sweeps/step (min {sweeps.min()}, "
         f"max {sweeps.max()}), {st['swaps'] / steps:.1f} swaps/step, "
         f"{st['rebuilds']} rebuilds, {1e6 * dt / steps / len(atoms):.3f} µs/atom/step "
-        f"(incl. the random walk); monotone: {grid.is_monotone()}")
+        f"(incl. the random walk); monotone: {rec['monotone']}")
     atoms.positions = walk.positions
     true = len(_exact_pairs(atoms, rc))
+    rec.update(true_pairs=true, template_quality={})
     say(f"template quality after the run (share of the {true} true pairs "
         "within rc found in the W^3 half template):")
     for w in (3, 5, 7, 9):
         found = len(template_pairs(grid, w, rc)[0])
+        rec["template_quality"][w] = found / true
         say(f"  W = {w}: {found / true:.4f}")
-    md_demo(len(atoms), md_steps, seed, say, progress=is_tty(out))
-    return grid
+    rec["md"] = md_demo(len(atoms), md_steps, seed, say, progress=is_tty(out))
+    return rec
 
 
 def md_demo(natoms, steps, seed, say, progress=None):
     """NVE MD of the liquid with MLGCalculator; energy conservation, and
     agreement and speed against ase.calculators.lj.LennardJones.
     ``progress``: draw progress bars (on stderr); default: when stderr is a
-    terminal."""
+    terminal.
+
+    Returns None when ``steps`` <= 0, else a dict: ``steps``,
+    ``step_seconds`` (wall time per MD step), ``drift`` (total
+    energy change per atom at the end, eV/atom), ``max_drift`` (largest |dE|
+    per atom, eV/atom), ``temperature`` (K), the calculator's
+    ``grid_builds``, ``list_builds`` and ``sweeps``, ``energy`` and
+    ``energy_ase`` (eV) of the last frame with a fresh calculator and with
+    ASE's, their ``energy_rel_diff``, ``max_force_diff`` (eV/Å), the
+    wall time of that force call (``force_call_seconds``, list built from
+    scratch) and of ASE's (``force_call_ase_seconds``), and ``trajectory``:
+    :func:`validate_trajectory`'s record."""
     from ase import units
     from ase.calculators.lj import LennardJones as AseLJ
     from ase.md.velocitydistribution import Stationary, thermalize_momenta
@@ -98,7 +135,7 @@ def md_demo(natoms, steps, seed, say, progress=None):
     from ..scenes import SIGMA_AR, lj_liquid
 
     if steps <= 0:
-        return
+        return None
     if progress is None:
         progress = is_tty(sys.stderr)
     say(f"NVE MD with MLGCalculator, {steps} steps: loading the calculator's "
@@ -124,6 +161,10 @@ def md_demo(natoms, steps, seed, say, progress=None):
     t_step = (time.perf_counter() - t0) / steps
     drift = (np.array(energies) - e0) / len(atoms)
     st = atoms.calc.stats
+    rec = dict(steps=steps, step_seconds=t_step,
+               drift=float(drift[-1]), max_drift=float(np.abs(drift).max()),
+               temperature=float(atoms.get_temperature()), grid_builds=st['grid_builds'],
+               list_builds=st['list_builds'], sweeps=st['sweeps'])
     say(f"NVE MD, {steps} steps of 5 fs, exact mode (skin 1 Å): "
         f"{1e3 * t_step:.2f} ms/step; total energy drift "
         f"{drift[-1]:+.2e} eV/atom, max |dE| {np.abs(drift).max():.2e} eV/atom; "
@@ -144,19 +185,30 @@ def md_demo(natoms, steps, seed, say, progress=None):
     f = ours.get_forces()
     e = ours.get_potential_energy()
     t_mlg = time.perf_counter() - t0
+    rec.update(energy=float(e), energy_ase=float(e_ref),
+               energy_rel_diff=float(abs(e - e_ref) / abs(e_ref)),
+               max_force_diff=float(np.abs(f - f_ref).max()),
+               force_call_seconds=t_mlg, force_call_ase_seconds=t_ase)
     say(f"against ase.calculators.lj.LennardJones on the same atoms: energy "
         f"{e:.8f} vs {e_ref:.8f} eV (rel. diff {abs(e - e_ref) / abs(e_ref):.1e}), "
         f"max force diff {np.abs(f - f_ref).max():.1e} eV/Å; one force call "
         f"{1e3 * t_mlg:.1f} ms (list built from scratch) vs {1e3 * t_ase:.0f} ms: "
         f"{t_ase / t_mlg:.0f}x faster")
-    validate_trajectory(frames, say, progress=progress)
+    rec["trajectory"] = validate_trajectory(frames, say, progress=progress)
+    return rec
 
 
 def validate_trajectory(frames, say, progress=False):
     """Write the MD frames, then check them two ways: the RDF through the MLG
     against MDAnalysis InterRDF (bin by bin), and the pairs of
     ase_mlg.NeighborList against ase.neighborlist.NeighborList.
-    ``progress``: MDAnalysis's progress bars for the two RDF runs."""
+    ``progress``: MDAnalysis's progress bars for the two RDF runs.
+
+    Returns a dict: ``frames``, ``atoms``, ``rmax`` (Å), ``rdf_identical``
+    (counts equal to InterRDF's in every bin), ``peak_g`` and ``peak_r`` (Å)
+    of the RDF's first peak, ``nl_entries``, ``nl_identical`` (the same
+    neighbours as ASE's NeighborList for every atom) and ``verdict`` ("PASS"
+    or "FAIL"; "FAIL" also raises RuntimeError after it is said)."""
     import os
     import tempfile
     import warnings
@@ -183,6 +235,10 @@ def validate_trajectory(frames, say, progress=False):
             ours = RDF(u.atoms, u.atoms, **kw).run(verbose=bool(progress))
             ref = InterRDF(u.atoms, u.atoms, **kw).run(verbose=bool(progress))
         same_rdf = np.array_equal(ours.results.count, ref.results.count)
+        peak = np.argmax(ours.results.rdf)
+        rec = dict(frames=len(frames), atoms=len(u.atoms), rmax=float(rmax),
+                   rdf_identical=bool(same_rdf), peak_g=float(ours.results.rdf[peak]),
+                   peak_r=float(ours.results.bins[peak]))
         say(f"RDF of {len(frames)} frames ({path.rsplit(os.sep, 1)[-1]}, "
             f"{len(u.atoms)} atoms, rmax {rmax:.2f} Å): counts "
             f"{'identical to' if same_rdf else 'DIFFERENT from'} MDAnalysis "
@@ -204,6 +260,8 @@ def validate_trajectory(frames, say, progress=False):
     say(f"neighbour list (radii 4 Å, bothways, {npairs} entries): "
         f"{'identical to' if same_pairs else 'DIFFERENT from'} ase.neighborlist.NeighborList")
     verdict = "PASS" if same_rdf and same_pairs else "FAIL"
+    rec.update(nl_entries=int(npairs), nl_identical=bool(same_pairs), verdict=verdict)
     say(f"verdict: {verdict}")
     if verdict != "PASS":
         raise RuntimeError("demo validation failed: see above")
+    return rec
