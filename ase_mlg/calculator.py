@@ -170,6 +170,8 @@ class MLGCalculator(Calculator):
                           swaps=t.stats["swaps"], grid_rebuilds=t.stats["rebuilds"])
 
     def _build_list(self, atoms, positions):
+        """Build the pair list; returns the positions in row order and the
+        shift vectors it was partitioned with (the force call's inputs)."""
         old, self._list = self._list, None
         self._update_grid(atoms, positions)
         rc = self.potential.cutoff
@@ -187,14 +189,16 @@ class MLGCalculator(Calculator):
             i, j, S, _ = template_pairs(self.grid, self.template, rlist)
             pl = pair_list(index, i, j, S)
         del old, index
-        pl.partition(pl.positions(positions, atoms.cell.array),
-                     shift_vectors(pl.shifts, atoms.cell.array), rc)
+        X = pl.positions(positions, atoms.cell.array)
+        svec = shift_vectors(pl.shifts, atoms.cell.array)
+        pl.partition(X, svec, rc)
         self._types = np.ascontiguousarray(self.potential.prepare(atoms.numbers)[0][pl.order])
         self._ref = positions.copy()
         self._ref_cell = atoms.cell.array.copy()
         self._rlist = rlist
         self._list = pl
         self.stats["list_builds"] += 1
+        return X, svec
 
     def _list_valid(self, positions, cell):
         """Does the list still hold every pair within the cutoff?
@@ -283,17 +287,19 @@ class MLGCalculator(Calculator):
             self._list = None
             if "pbc" in system_changes or len(positions) != self.grid.natoms:
                 self._tracker.reset()
-        if not self._list_valid(positions, cell):
-            self._build_list(atoms, positions)
-        pl = self._list
         # positions in grid order: neighbours are close in memory whatever
         # the atoms' index order
+        if self._list_valid(positions, cell):
+            X = self._list.positions(positions, cell)
+            svec = shift_vectors(self._list.shifts, cell)
+        else:
+            X, svec = self._build_list(atoms, positions)
+        pl = self._list
         # the virial costs a tenth of the loop: only for callers that ask
         # for stress (once asked, always: barostats ask after the forces)
         self._stress_wanted |= "stress" in properties or "stresses" in properties
         res = self.potential.sum_pairs(
-            pl.positions(positions, cell), self._types, pl.rowptr, pl.nbr,
-            pl.code, shift_vectors(pl.shifts, cell), pl.order,
+            X, self._types, pl.rowptr, pl.nbr, pl.code, svec, pl.order,
             energies="energies" in properties, virials="stresses" in properties,
             virial=self._stress_wanted)
         self.stats["calls"] += 1

@@ -86,14 +86,14 @@ CUT_SCALAR, CUT_RADII, CUT_TABLE = 0, 1, 2
 # --------------------------------------------------------------------------
 
 @njit(cache=True, inline="always")
-def _search(arr, col, base, stride, n, q, right):
-    """First index t in [0, n) with ``arr[base + t*stride, col] >= q``, or
+def _search(arr, col, base, n, q, right):
+    """First index t in [0, n) with ``arr[base + t, col] >= q``, or
     ``> q`` when ``right`` (numpy's ``searchsorted`` sides); n if none."""
     lo = 0
     hi = n
     while lo < hi:
         mid = (lo + hi) >> 1
-        x = arr[base + mid * stride, col]
+        x = arr[base + mid, col]
         if x > q or (x == q and not right):
             hi = mid
         else:
@@ -106,8 +106,8 @@ def _overlap(box, base, n, qlo, qhi, a):
     """First and last of the ``n`` boxes from row ``base`` that can meet
     [qlo, qhi] along axis ``a``, along which their lows and highs are both
     monotone (docs/design.md §6): bisection on each."""
-    return (_search(box, 3 + a, base, 1, n, qlo[a], False),
-            _search(box, a, base, 1, n, qhi[a], True) - 1)
+    return (_search(box, 3 + a, base, n, qlo[a], False),
+            _search(box, a, base, n, qhi[a], True) - 1)
 
 
 @njit(cache=True, inline="always")

@@ -91,10 +91,11 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
                swaps_per_step=st['swaps'] / steps, rebuilds=st['rebuilds'],
                step_seconds_per_atom=dt / steps / len(atoms),
                monotone=bool(grid.is_monotone()))
-    say(f"{steps} updates: {sweeps.mean():.2f} sweeps/step (min {sweeps.min()}, "
-        f"max {sweeps.max()}), {st['swaps'] / steps:.1f} swaps/step, "
-        f"{st['rebuilds']} rebuilds, {1e6 * dt / steps / len(atoms):.3f} µs/atom/step "
-        f"(incl. the random walk); monotone: {rec['monotone']}")
+    sw = rec["sweeps"]
+    say(f"{steps} updates: {sw['mean']:.2f} sweeps/step (min {sw['min']}, "
+        f"max {sw['max']}), {rec['swaps_per_step']:.1f} swaps/step, "
+        f"{rec['rebuilds']} rebuilds, {1e6 * rec['step_seconds_per_atom']:.3f} "
+        f"µs/atom/step (incl. the random walk); monotone: {rec['monotone']}")
     atoms.positions = walk.positions
     true = len(_exact_pairs(atoms, rc))
     rec.update(true_pairs=true, template_quality={})
