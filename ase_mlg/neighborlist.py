@@ -53,6 +53,11 @@ import numpy as np
 # ASE's helpers that build no list are ASE's own, re-exported unchanged
 from ase.neighborlist import (get_distance_indices, get_distance_matrix,
                               mic, natural_cutoffs)
+# ASE's own class, bound now: code that rebinds ase.neighborlist's names to
+# ours (a monkeypatch, or sys.modules["ase.neighborlist"] = this module, so
+# that ASE's calculators run on the MLG) must not make _MLGPrimitive._sort
+# call itself through the name it looks up
+from ase.neighborlist import NewPrimitiveNeighborList as _AseNewPrimitive
 from scipy import sparse as _sp
 
 from .blocks import BlockIndex
@@ -424,11 +429,15 @@ class _MLGPrimitive:
         skey = key[order]
         if len(skey) < 2 or not (skey[1:] == skey[:-1]).any():
             return i[order], j[order], S[order]
-        from ase.neighborlist import NewPrimitiveNeighborList as _AseNew
-        ref = _AseNew(self.cutoffs, skin=0.0, sorted=True,
-                      self_interaction=self.self_interaction,
-                      bothways=self.bothways,
-                      use_scaled_positions=self.use_scaled_positions)
+        if issubclass(_AseNewPrimitive, _MLGPrimitive):
+            # this module was re-imported after ASE's name had been bound to
+            # ours: ASE's search is out of reach, keep one deterministic order
+            order = np.lexsort((S[:, 2], S[:, 1], S[:, 0], key))
+            return i[order], j[order], S[order]
+        ref = _AseNewPrimitive(self.cutoffs, skin=0.0, sorted=True,
+                               self_interaction=self.self_interaction,
+                               bothways=self.bothways,
+                               use_scaled_positions=self.use_scaled_positions)
         ref.build(pbc, self.cell, coords)
         ai, aj, aS = (np.asarray(ref.pair_first, dtype=int),
                       np.asarray(ref.pair_second, dtype=int),
