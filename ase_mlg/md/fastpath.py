@@ -1,0 +1,168 @@
+"""When the compiled MD step may run, and what it reads and writes.
+
+The compiled step updates ``atoms.arrays['positions']`` and
+``atoms.arrays['momenta']`` in place.  That is what ASE itself does:
+``Atoms.set_positions`` and ``set_momenta`` end in ``set_array``, which
+copies into the existing array (``b[:] = a``), so the array objects never
+change and a calculator can only notice new positions by comparing them
+with the copy of the atoms it stored at its last calculation (ASE's
+``check_state``; ``MLGCalculator.check_state`` too).  In-place edits are
+therefore seen exactly as ASE's own writes are (``tests/test_md.py``
+checks it).
+
+The step runs compiled only when it can reproduce ASE's step exactly:
+
+* ``atoms`` is an :class:`ase.Atoms` whose position, momentum, mass and
+  force methods are ASE's own (not a filter or a subclass that changes
+  them);
+* every constraint is a plain :class:`ase.constraints.FixAtoms`
+  (fixed positions, zeroed momenta, as ASE applies them);
+* positions and momenta are C-contiguous, writeable float64 ``(N, 3)``
+  arrays and the masses are finite and positive.
+
+Otherwise the step is ASE's own, unchanged (``path`` says which and why):
+any other constraint is applied exactly as ASE applies it, at ASE's speed.
+"""
+
+import numpy as np
+from ase import Atoms
+from ase.constraints import FixAtoms
+from ase.data import atomic_masses
+
+from ..calculator import MLGCalculator
+
+__all__ = ["compiled_reason", "masses_now", "fixed_mask", "forces_now",
+           "as_float_array", "is_mlg"]
+
+_ATOMS_METHODS = ("set_positions", "get_positions", "set_momenta", "get_momenta",
+                  "get_masses", "get_velocities", "get_forces", "set_array")
+
+
+def _is_plain_atoms(atoms):
+    if not isinstance(atoms, Atoms):
+        return False
+    cls = type(atoms)
+    return cls is Atoms or all(getattr(cls, name) is getattr(Atoms, name)
+                               for name in _ATOMS_METHODS)
+
+
+def _state_array(a, n):
+    return (isinstance(a, np.ndarray) and a.dtype == np.float64 and a.shape == (n, 3)
+            and a.flags.c_contiguous and a.flags.writeable and a.flags.aligned)
+
+
+def compiled_reason(atoms):
+    """Why the compiled step cannot run on ``atoms`` (None: it can).
+
+    Parameters
+    ----------
+    atoms : object
+        What the integrator was given.
+
+    Returns
+    -------
+    str or None
+        A short reason, e.g. ``"constraint FixBondLength"``.
+    """
+    if not _is_plain_atoms(atoms):
+        return f"atoms is a {type(atoms).__name__}, not a plain ase.Atoms"
+    for c in atoms.constraints:
+        if type(c) is not FixAtoms:
+            return f"constraint {type(c).__name__}"
+    n = len(atoms)
+    arrays = atoms.arrays
+    if not _state_array(arrays.get("positions"), n):
+        return "positions are not a writeable C-contiguous float64 (N, 3) array"
+    if not _state_array(arrays.get("momenta"), n):
+        return "momenta are not a writeable C-contiguous float64 (N, 3) array"
+    return None
+
+
+def masses_now(atoms):
+    """``atoms.get_masses()`` without its copy when the atoms store masses.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+
+    Returns
+    -------
+    (N,) float64 C-contiguous array
+        Masses (amu); a view of ``atoms.arrays['masses']`` when present
+        (the kernels only read it).
+    """
+    m = atoms.arrays.get("masses")
+    if m is None:
+        m = atomic_masses[atoms.arrays["numbers"]]
+    return np.ascontiguousarray(m, dtype=np.float64)
+
+
+def fixed_mask(atoms):
+    """Which atoms the atoms' FixAtoms constraints fix.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        Every constraint a FixAtoms (see :func:`compiled_reason`).
+
+    Returns
+    -------
+    (N,) bool array
+    """
+    mask = np.zeros(len(atoms), dtype=np.bool_)
+    for c in atoms.constraints:
+        mask[c.index] = True
+    return mask
+
+
+def as_float_array(a, n, name="forces"):
+    """``a`` as a C-contiguous float64 ``(N, 3)`` array (no copy if it is one).
+
+    Raises
+    ------
+    ValueError
+        If the shape is not ``(N, 3)``.
+    """
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    if a.shape != (n, 3):
+        raise ValueError(f"{name}: expected shape ({n}, 3), got {a.shape}")
+    return a
+
+
+def is_mlg(atoms):
+    """Is the atoms' calculator an :class:`~ase_mlg.MLGCalculator` (exactly:
+    a subclass may compute differently)?"""
+    return type(atoms.calc) is MLGCalculator
+
+
+def forces_now(atoms):
+    """The forces of ASE's ``atoms.get_forces(md=True)`` for the compiled step.
+
+    With FixAtoms only, ``get_forces(md=True)`` applies no constraint (ASE
+    constrains momenta in MD, not forces), so the forces are the
+    calculator's.  An :class:`~ase_mlg.MLGCalculator` hands over its own
+    result array (read only, never written): the same steps as ASE's
+    ``Calculator.get_property`` without its final copy, and without its
+    ``atoms.copy()`` before ``calculate``, which ``Calculator.calculate``
+    (called first by ``MLGCalculator.calculate``) repeats anyway.  Any other
+    calculator goes through ``atoms.get_forces(md=True)``.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+
+    Returns
+    -------
+    (N, 3) float64 C-contiguous array
+        Forces (eV/Å); the kernels must not write to it.
+    """
+    calc = atoms.calc
+    if not is_mlg(atoms):
+        return as_float_array(atoms.get_forces(md=True), len(atoms))
+    changes = calc.check_state(atoms)
+    if changes:
+        calc.atoms = None
+        calc.results = {}
+    if "forces" not in calc.results:
+        calc.calculate(atoms, ["forces"], changes)
+    return as_float_array(calc.results["forces"], len(atoms))

@@ -1,0 +1,228 @@
+"""Fused, compiled position and momentum updates of the MD integrators.
+
+Each kernel is one pass over the atoms, in place on the arrays it is given
+(``atoms.arrays['positions']``, ``atoms.arrays['momenta']`` and the
+integrators' own buffers).  They reproduce ASE's numpy expressions
+operation by operation, in the same order and with the same roundings
+(numba compiles without fast-math, so no reassociation or fused
+multiply-add), which is why the trajectories agree with ASE's bit for bit
+and not only to a tolerance.  The ASE line each one replaces is quoted
+beside it.
+
+Units are ASE's: positions Å, momenta amu Å / (ASE time), forces eV/Å,
+masses amu, time steps ASE time units.
+"""
+
+import numpy as np
+from numba import njit
+
+__all__ = ["verlet_drift", "verlet_drift_rattle", "verlet_kick",
+           "langevin_noise", "langevin_drift", "langevin_kick"]
+
+
+@njit(cache=True)
+def verlet_drift(x, p, f, m, dt):
+    """First half of a velocity Verlet step, no constraints.
+
+    ``p += 0.5 dt f`` then ``x += dt p / m``, in place.
+
+    Parameters
+    ----------
+    x : (N, 3) float64 array
+        Positions (Å), updated in place.
+    p : (N, 3) float64 array
+        Momenta (amu Å / ASE time), updated in place.
+    f : (N, 3) float64 array
+        Forces (eV/Å) at ``x``.
+    m : (N,) float64 array
+        Masses (amu).
+    dt : float
+        Time step (ASE time units).
+    """
+    h = 0.5 * dt                               # ASE: 0.5 * self.dt * forces
+    for a in range(x.shape[0]):
+        ma = m[a]
+        for c in range(3):
+            pc = p[a, c] + h * f[a, c]         # p += 0.5 * dt * forces
+            p[a, c] = pc
+            x[a, c] = x[a, c] + dt * pc / ma   # r + self.dt * p / masses
+
+
+@njit(cache=True)
+def verlet_drift_rattle(x, p, f, m, dt, fixed):
+    """First half of a velocity Verlet step with fixed atoms (FixAtoms).
+
+    As :func:`verlet_drift`, then what ASE does when the atoms carry any
+    constraint: fixed atoms keep their positions (``adjust_positions``) and
+    every momentum is recomputed from the displacement,
+    ``p = (x_new - x) m / dt`` (the first half of RATTLE), which rounds
+    differently from the ``p`` it came from; fixed atoms get exactly 0.
+
+    Parameters
+    ----------
+    x, p, f, m, dt
+        As :func:`verlet_drift`.
+    fixed : (N,) bool array
+        True where the atom is fixed.
+    """
+    h = 0.5 * dt
+    for a in range(x.shape[0]):
+        ma = m[a]
+        fix = fixed[a]
+        for c in range(3):
+            r = x[a, c]
+            pc = p[a, c] + h * f[a, c]
+            xn = r if fix else r + dt * pc / ma
+            x[a, c] = xn
+            # p = (atoms.get_positions() - r) * masses / self.dt
+            p[a, c] = (xn - r) * ma / dt
+
+
+@njit(cache=True)
+def verlet_kick(p, f, dt, fixed):
+    """Second half of a velocity Verlet step: ``p += 0.5 dt f``, in place;
+    momenta of fixed atoms zeroed (``FixAtoms.adjust_momenta``).
+
+    Parameters
+    ----------
+    p : (N, 3) float64 array
+        Momenta (amu Å / ASE time), updated in place.
+    f : (N, 3) float64 array
+        Forces (eV/Å) at the new positions.
+    dt : float
+        Time step (ASE time units).
+    fixed : (N,) bool array
+        True where the atom is fixed (all False without constraints).
+    """
+    h = 0.5 * dt
+    for a in range(p.shape[0]):
+        if fixed[a]:
+            for c in range(3):
+                p[a, c] = 0.0
+        else:
+            for c in range(3):
+                p[a, c] = p[a, c] + h * f[a, c]
+
+
+@njit(cache=True)
+def langevin_noise(xi, eta, c3, c4, c5, rnd_pos, rnd_vel):
+    """The random displacements and velocity kicks of ASE's Langevin step.
+
+    ``rnd_pos = c5 eta`` and ``rnd_vel = c3 xi - c4 eta``, into the given
+    buffers.
+
+    Parameters
+    ----------
+    xi, eta : (N, 3) float64 arrays
+        Standard normal draws, in ASE's order (``xi`` first).
+    c3, c4, c5 : (N,) float64 arrays
+        Per-atom coefficients of ``Langevin.updatevars`` (Å/ASE time, 1/ASE
+        time x Å, Å).
+    rnd_pos, rnd_vel : (N, 3) float64 arrays
+        Outputs (Å, Å / ASE time).
+    """
+    for a in range(xi.shape[0]):
+        for c in range(3):
+            rnd_pos[a, c] = c5[a] * eta[a, c]
+            rnd_vel[a, c] = c3[a] * xi[a, c] - c4[a] * eta[a, c]
+
+
+@njit(cache=True)
+def langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel, spos, svel, factor,
+                   fixcm, c1, c2, dt, fixed):
+    """First half of ASE's Langevin step (Vanden-Eijnden and Ciccotti,
+    Eq. 23), in place.
+
+    ``v = p / m``; with ``fixcm`` the noise is made momentum-free and
+    rescaled (``rnd_pos -= spos / N``, ``rnd_vel -= svel / (m N)``, both
+    times ``factor``, written back to the buffers as ASE keeps them);
+    ``v += c1 f / m - c2 v + rnd_vel``; ``x += dt v + rnd_pos`` except for
+    fixed atoms; then ``v = (x_new - x - rnd_pos) / dt``.
+
+    Parameters
+    ----------
+    x : (N, 3) float64 array
+        Positions (Å), updated in place.
+    v : (N, 3) float64 array
+        Output: velocities (Å / ASE time) after the drift.
+    p : (N, 3) float64 array
+        Momenta (amu Å / ASE time), read.
+    f : (N, 3) float64 array
+        Forces (eV/Å) at ``x``.
+    m_now : (N,) float64 array
+        The atoms' masses now (amu; ASE's ``get_velocities`` divides by them).
+    m : (N,) float64 array
+        The masses the integrator was set up with (amu; ``self.masses``).
+    rnd_pos, rnd_vel : (N, 3) float64 arrays
+        From :func:`langevin_noise`; corrected in place when ``fixcm``.
+    spos, svel : (3,) float64 arrays
+        ``rnd_pos.sum(axis=0)`` and ``(rnd_vel * masses).sum(axis=0)``
+        (numpy's sums, so that the rounding is ASE's).
+    factor : float
+        ``sqrt(N / (N - 1))``.
+    fixcm : bool
+        ASE's ``fixcm``.
+    c1, c2 : float
+        Coefficients of ``updatevars`` (ASE time, dimensionless).
+    dt : float
+        Time step (ASE time units).
+    fixed : (N,) bool array
+        True where the atom is fixed (FixAtoms).
+    """
+    n = x.shape[0]
+    fn = float(n)
+    for a in range(n):
+        mn = m_now[a]
+        ma = m[a]
+        fix = fixed[a]
+        for c in range(3):
+            rp = rnd_pos[a, c]
+            rv = rnd_vel[a, c]
+            if fixcm:
+                rp = (rp - spos[c] / fn) * factor
+                rv = (rv - svel[c] / (ma * fn)) * factor
+                rnd_pos[a, c] = rp
+                rnd_vel[a, c] = rv
+            vc = p[a, c] / mn                               # get_velocities()
+            vc = vc + ((c1 * f[a, c] / ma - c2 * vc) + rv)  # self.v += ...
+            r = x[a, c]
+            xn = r if fix else (r + dt * vc) + rp           # x + dt * v + rnd_pos
+            x[a, c] = xn
+            v[a, c] = ((xn - r) - rp) / dt                  # (x_new - x - rnd_pos) / dt
+
+
+@njit(cache=True)
+def langevin_kick(v, p, f, m, rnd_vel, c1, c2, fixed):
+    """Second half of ASE's Langevin step, in place:
+    ``v += c1 f / m - c2 v + rnd_vel``, ``p = v m`` (0 for fixed atoms).
+
+    Parameters
+    ----------
+    v : (N, 3) float64 array
+        Velocities (Å / ASE time), updated in place.
+    p : (N, 3) float64 array
+        Output: momenta (amu Å / ASE time).
+    f : (N, 3) float64 array
+        Forces (eV/Å) at the new positions.
+    m : (N,) float64 array
+        The integrator's masses (amu).
+    rnd_vel : (N, 3) float64 array
+        The step's velocity kicks (Å / ASE time).
+    c1, c2 : float
+        Coefficients of ``updatevars``.
+    fixed : (N,) bool array
+        True where the atom is fixed.
+    """
+    for a in range(v.shape[0]):
+        ma = m[a]
+        fix = fixed[a]
+        for c in range(3):
+            vc = v[a, c]
+            vc = vc + ((c1 * f[a, c] / ma - c2 * vc) + rnd_vel[a, c])
+            v[a, c] = vc
+            p[a, c] = 0.0 if fix else vc * ma
+
+
+def no_fixed(n):
+    """The all-False mask of ``n`` atoms (no FixAtoms)."""
+    return np.zeros(n, dtype=np.bool_)

@@ -1,0 +1,145 @@
+"""``Langevin``: ASE's NVT Langevin integrator with a compiled step."""
+
+import numpy as np
+from ase.md.langevin import Langevin as _ASELangevin
+
+from . import kernels
+from .checks import check_dynamics_args, check_langevin_args
+from .fastpath import (as_float_array, compiled_reason, fixed_mask, forces_now,
+                       is_mlg, masses_now)
+
+__all__ = ["Langevin"]
+
+
+def _per_atom(c, n):
+    """A coefficient of ``updatevars`` as a contiguous (N,) float64 array,
+    or None when it is not one value per atom (a per-atom friction)."""
+    a = np.asarray(c, dtype=np.float64)
+    if a.ndim == 0:
+        return np.full(n, float(a))
+    if a.shape in ((n, 1), (n,)):
+        return np.ascontiguousarray(a.reshape(n))
+    return None
+
+
+class Langevin(_ASELangevin):
+    """Langevin dynamics (NVT), a drop-in for :class:`ase.md.langevin.Langevin`.
+
+    ASE's algorithm (Vanden-Eijnden and Ciccotti 2006, Eq. 23) with ASE's
+    random draws: per step ``xi`` then ``eta``, each
+    ``rng.standard_normal(size=(N, 3))``, so the same ``rng`` seed gives
+    ASE's trajectory bit for bit.  Same constructor, observers, ``run`` /
+    ``irun``, trajectory and log as ASE's class, which it subclasses; the
+    position and velocity updates of :meth:`step` are fused compiled
+    passes in place on the atoms' arrays.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        The system; its calculator gives the forces.
+    timestep : float
+        Time step in ASE time units, finite and > 0.
+    temperature : float, optional
+        Deprecated: the temperature in eV (as ASE).
+    friction : float
+        Friction coefficient in 1 / ASE time units, >= 0 (e.g.
+        ``0.01 / ase.units.fs``).
+    fixcm : bool, default True
+        As ASE (deprecated there since 3.28, with its FutureWarning): keep
+        the centre of mass still.
+    temperature_K : float
+        The target temperature (K), >= 0.
+    rng : numpy Generator or RandomState, optional
+        ``numpy.random`` when None, as in ASE.
+    **kwargs
+        ``trajectory``, ``logfile``, ``loginterval``, ``append_trajectory``,
+        ``master``, ``comm``: as in ASE.
+
+    Notes
+    -----
+    FixAtoms runs compiled as ASE applies it; other constraints (e.g. ones
+    that redistribute the noise), filters, and per-atom temperature or
+    friction arrays run ASE's own step, unchanged; :attr:`path` says which
+    path the last step took.
+    """
+
+    def __init__(self, atoms, timestep, temperature=None, friction=None, fixcm=True,
+                 *, temperature_K=None, rng=None, **kwargs):
+        check_dynamics_args(atoms, timestep, kwargs.get("loginterval", 1))
+        check_langevin_args(temperature, temperature_K, friction, fixcm, rng)
+        self.path = None
+        super().__init__(atoms, timestep, temperature=temperature, friction=friction,
+                         fixcm=fixcm, temperature_K=temperature_K, rng=rng, **kwargs)
+
+    def _coefficients(self, n):
+        """c1, c2 (floats) and c3, c4, c5, masses (N,) for the kernels, or
+        None when ASE's step must run (per-atom friction, changed N)."""
+        if np.ndim(self.c1) or np.ndim(self.c2):
+            return None
+        m = self.masses
+        if getattr(m, "shape", None) != (n, 1):
+            return None
+        c = [_per_atom(x, n) for x in (self.c3, self.c4, self.c5)]
+        if any(x is None for x in c):
+            return None
+        return (float(self.c1), float(self.c2), *c, np.ascontiguousarray(m.reshape(n)))
+
+    def _buffers(self, n):
+        v = getattr(self, "_v", None)
+        if v is None or v.shape != (n, 3):
+            self._v = np.empty((n, 3))
+            self._rnd_pos = np.empty((n, 3))
+            self._rnd_vel = np.empty((n, 3))
+        return self._v, self._rnd_pos, self._rnd_vel
+
+    def step(self, forces=None):
+        """One Langevin step; returns the forces at the new positions (eV/Å,
+        read-only on the compiled path)."""
+        atoms = self.atoms
+        n = len(atoms)
+        reason = compiled_reason(atoms)
+        coef = None if reason is not None else self._coefficients(n)
+        if coef is None:
+            self.path = "ase: " + (reason or "per-atom friction or temperature")
+            return super().step(forces)
+        self.path = "compiled"
+        c1, c2, c3, c4, c5, m = coef
+        f = forces_now(atoms) if forces is None else as_float_array(forces, n)
+        m_now = masses_now(atoms)
+        # ASE's draws, in ASE's order and shapes: the same rng state gives
+        # the same noise (FixAtoms has no redistribute_forces_md to apply)
+        xi = self.rng.standard_normal(size=(n, 3))
+        eta = self.rng.standard_normal(size=(n, 3))
+        self.comm.broadcast(xi, 0)
+        self.comm.broadcast(eta, 0)
+        xi = as_float_array(xi, n, "rng.standard_normal")
+        eta = as_float_array(eta, n, "rng.standard_normal")
+        v, rnd_pos, rnd_vel = self._buffers(n)
+        kernels.langevin_noise(xi, eta, c3, c4, c5, rnd_pos, rnd_vel)
+        if self.fix_com:
+            factor = float(np.sqrt(n / (n - 1.0)))
+            # numpy's sums, as ASE takes them, so that the rounding matches
+            spos = rnd_pos.sum(axis=0)
+            svel = (rnd_vel * self.masses).sum(axis=0)
+        else:
+            factor, spos, svel = 1.0, np.zeros(3), np.zeros(3)
+        fixed = fixed_mask(atoms) if atoms.constraints else kernels.no_fixed(n)
+        x = atoms.arrays["positions"]
+        p = atoms.arrays["momenta"]
+        dt = float(self.dt)
+        kernels.langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel, spos, svel,
+                               factor, bool(self.fix_com), c1, c2, dt, fixed)
+        # ASE stores the velocity and the noise as attributes (Asap reads them)
+        self.v, self.rnd_pos, self.rnd_vel = v, rnd_pos, rnd_vel
+        f = forces_now(atoms)
+        kernels.langevin_kick(v, p, f, m, rnd_vel, c1, c2, fixed)
+        ro = f.view()
+        ro.flags.writeable = False
+        return ro
+
+    def _refresh_properties(self):
+        # see VelocityVerlet._refresh_properties: caching needs no copy
+        if is_mlg(self.atoms) and compiled_reason(self.atoms) is None:
+            forces_now(self.atoms)
+        else:
+            super()._refresh_properties()

@@ -1,0 +1,98 @@
+"""``VelocityVerlet``: ASE's NVE integrator with a compiled step."""
+
+from ase.md.verlet import VelocityVerlet as _ASEVelocityVerlet
+
+from . import kernels
+from .checks import check_dynamics_args
+from .fastpath import (as_float_array, compiled_reason, fixed_mask, forces_now,
+                       is_mlg, masses_now)
+
+__all__ = ["VelocityVerlet"]
+
+
+def _readonly(a):
+    v = a.view()
+    v.flags.writeable = False
+    return v
+
+
+class VelocityVerlet(_ASEVelocityVerlet):
+    """Velocity Verlet (NVE), a drop-in for :class:`ase.md.verlet.VelocityVerlet`.
+
+    Same constructor, observers (``attach``), ``run`` / ``irun``,
+    ``trajectory``, ``logfile``, ``loginterval``, ``nsteps`` and
+    ``max_steps`` as ASE's class, which it subclasses; only :meth:`step`
+    differs.  The step is one compiled pass before the force call and one
+    after it, in place on ``atoms.arrays['positions']`` and
+    ``['momenta']``, reproducing ASE's arithmetic (and so its trajectory)
+    bit for bit.  It works with any ASE calculator; with an
+    :class:`~ase_mlg.MLGCalculator` the forces are read without a copy.
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        The system; its calculator gives the forces.
+    timestep : float
+        Time step in ASE time units (e.g. ``5 * ase.units.fs``), finite and > 0.
+    trajectory : str, Path or Trajectory, optional
+        As in ASE.
+    logfile : str or file, optional
+        As in ASE (``'-'``: standard output).
+    loginterval : int, default 1
+        Steps between log lines and trajectory frames, >= 1.
+    **kwargs
+        ``append_trajectory``, ``master``, ``comm``: as in ASE.
+
+    Notes
+    -----
+    Constraints: :class:`ase.constraints.FixAtoms` runs compiled, exactly
+    as ASE applies it (fixed atoms keep their positions, their momenta are
+    zeroed, the other momenta go through ASE's RATTLE expression).  Any
+    other constraint, a filter instead of an Atoms, or unusual position or
+    momentum arrays run ASE's own step, unchanged; :attr:`path` says which
+    path the last step took.
+    """
+
+    def __init__(self, atoms, timestep, trajectory=None, logfile=None,
+                 loginterval=1, **kwargs):
+        check_dynamics_args(atoms, timestep, loginterval)
+        self.path = None
+        super().__init__(atoms, timestep, trajectory=trajectory, logfile=logfile,
+                         loginterval=loginterval, **kwargs)
+
+    def step(self, forces=None):
+        """One velocity Verlet step; returns the forces at the new positions
+        (eV/Å, read-only on the compiled path)."""
+        atoms = self.atoms
+        reason = compiled_reason(atoms)
+        if reason is not None:
+            self.path = "ase: " + reason
+            return super().step(forces)
+        self.path = "compiled"
+        n = len(atoms)
+        f = forces_now(atoms) if forces is None else as_float_array(forces, n)
+        m = masses_now(atoms)
+        x = atoms.arrays["positions"]
+        p = atoms.arrays["momenta"]
+        dt = float(self.dt)
+        if atoms.constraints:
+            fixed = fixed_mask(atoms)
+            kernels.verlet_drift_rattle(x, p, f, m, dt, fixed)
+        else:
+            fixed = kernels.no_fixed(n)
+            kernels.verlet_drift(x, p, f, m, dt)
+        # the calculator sees the new positions through check_state (the
+        # arrays were written in place, as ASE's set_array does); momenta
+        # are stored before the force call, as ASE does for Asap
+        f = forces_now(atoms)
+        kernels.verlet_kick(p, f, dt, fixed)
+        return _readonly(f)
+
+    def _refresh_properties(self):
+        # ASE calls atoms.get_forces() here only to have the results cached
+        # for loggers and observers; with MLGCalculator that needs no copy
+        if is_mlg(self.atoms) and compiled_reason(self.atoms) is None:
+            forces_now(self.atoms)
+        else:
+            super()._refresh_properties()
+
