@@ -27,6 +27,8 @@ Statistics (list builds, grid rebuilds, sweeps, swaps, pairs evaluated) are
 in ``calc.stats``.
 """
 
+import time
+
 import numpy as np
 from ase.calculators.calculator import Calculator, all_changes
 from numba import njit
@@ -37,6 +39,8 @@ from .template import template_pairs
 from .pairsum import shift_vectors
 from .potentials import PairPotential
 from .blocks import BlockIndex
+from .parallel import threads_for
+from .partition import RowChunks, chunk_count
 from .query import half_list, pair_list
 from .tracker import GridTracker
 
@@ -146,10 +150,18 @@ class MLGCalculator(Calculator):
         # NPT keeps one grid: it follows the cell (docs/design.md §4)
         self._tracker = GridTracker(follow_cell=True, **self.grid_kwargs)
         self._list = None
+        self._chunks = None
         self._stress_wanted = False
         self.stats = {"calls": 0, "list_builds": 0, "grid_builds": 0,
                       "sweeps": 0, "swaps": 0, "grid_rebuilds": 0,
-                      "pairs": 0}
+                      "pairs": 0, "threads_used": 0}
+        #: Cumulative wall time (s) of each phase of :meth:`calculate`:
+        #: ``check`` (is the list still valid), ``gather`` (positions to
+        #: row order), ``list_build`` (rebuilds, the grid's part included),
+        #: ``grid`` (grid updates and sweeps), ``kernel`` (the pair sum),
+        #: and ``calls``.
+        self.timings = dict.fromkeys(("check", "gather", "list_build", "grid",
+                                      "kernel", "calls"), 0.0)
 
     @property
     def grid(self):
@@ -160,19 +172,21 @@ class MLGCalculator(Calculator):
     def reset(self):
         Calculator.reset(self)
         self._tracker.reset()
-        self._list = None
+        self._list = self._chunks = None
 
     # -- the pair list ------------------------------------------------------
     def _update_grid(self, atoms, positions):
         t = self._tracker
+        t0 = time.perf_counter()
         t.follow(positions, atoms.cell.array, atoms.pbc)
+        self.timings["grid"] += time.perf_counter() - t0
         self.stats.update(grid_builds=t.stats["builds"], sweeps=t.stats["sweeps"],
                           swaps=t.stats["swaps"], grid_rebuilds=t.stats["rebuilds"])
 
     def _build_list(self, atoms, positions):
         """Build the pair list; returns the positions in row order and the
         shift vectors it was partitioned with (the force call's inputs)."""
-        old, self._list = self._list, None
+        old, self._list, self._chunks = self._list, None, None
         self._update_grid(atoms, positions)
         rc = self.potential.cutoff
         # the query keeps d < rlist; the potential keeps d <= rc
@@ -193,6 +207,8 @@ class MLGCalculator(Calculator):
         svec = shift_vectors(pl.shifts, atoms.cell.array)
         pl.partition(X, svec, rc)
         self._types = np.ascontiguousarray(self.potential.prepare(atoms.numbers)[0][pl.order])
+        self._numbers = atoms.numbers.copy()
+        self._pbc = atoms.pbc.copy()
         self._ref = positions.copy()
         self._ref_cell = atoms.cell.array.copy()
         self._rlist = rlist
@@ -281,29 +297,48 @@ class MLGCalculator(Calculator):
         # NaN/inf positions need no numpy pass here (2 ms at 10^5 atoms):
         # they fail the list test below, and the grid names the atoms
         cell = atoms.cell.array
+        timings = self.timings
+        t0 = time.perf_counter()
+        # what changed is decided from the atoms against what the list was
+        # built for, not from system_changes: ASE's get_properties and a bare
+        # calculate(atoms) pass all_changes, which would drop a valid list and
+        # grid on every call (the grid follows cell and pbc changes itself)
         if self._list is not None and (
-                "numbers" in system_changes or "pbc" in system_changes
-                or len(positions) != self._list.natoms):
-            self._list = None
-            if "pbc" in system_changes or len(positions) != self.grid.natoms:
-                self._tracker.reset()
+                len(positions) != self._list.natoms
+                or not np.array_equal(atoms.pbc, self._pbc)
+                or not np.array_equal(atoms.numbers, self._numbers)):
+            self._list = self._chunks = None
         # positions in grid order: neighbours are close in memory whatever
         # the atoms' index order
-        if self._list_valid(positions, cell):
+        valid = self._list_valid(positions, cell)
+        t1 = time.perf_counter()
+        timings["check"] += t1 - t0
+        if valid:
             X = self._list.positions(positions, cell)
             svec = shift_vectors(self._list.shifts, cell)
+            t2 = time.perf_counter()
+            timings["gather"] += t2 - t1
         else:
             X, svec = self._build_list(atoms, positions)
+            t2 = time.perf_counter()
+            timings["list_build"] += t2 - t1
         pl = self._list
+        nchunk = chunk_count(len(pl), threads_for("pairs", len(pl)))
+        if self._chunks is None or self._chunks.nchunk != nchunk:
+            # the unit of parallel work, kept with its buffers for the list's life
+            self._chunks = RowChunks(pl.rowptr, pl.nbr, nchunk)
         # the virial costs a tenth of the loop: only for callers that ask
         # for stress (once asked, always: barostats ask after the forces)
         self._stress_wanted |= "stress" in properties or "stresses" in properties
         res = self.potential.sum_pairs(
             X, self._types, pl.rowptr, pl.nbr, pl.code, svec, pl.order,
             energies="energies" in properties, virials="stresses" in properties,
-            virial=self._stress_wanted)
+            virial=self._stress_wanted, chunks=self._chunks)
+        timings["kernel"] += time.perf_counter() - t2
+        timings["calls"] += 1
         self.stats["calls"] += 1
         self.stats["pairs"] += len(pl)
+        self.stats["threads_used"] = self._chunks.threads_used()
         self.results["energy"] = res["energy"]
         self.results["free_energy"] = res["energy"]
         self.results["forces"] = res["forces"]

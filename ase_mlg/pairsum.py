@@ -6,10 +6,11 @@ the pair function (inlined), and accumulates energy, forces and, when
 asked, per-atom energies and virials.  A user's pair function is passed as
 a compile-time argument (:data:`_GENERIC`, compiled once per process); the
 built-in potentials have cached entry points with their pair function
-inlined (:data:`_BUILT_IN`).  Threads follow :mod:`ase_mlg.parallel`: one
-chunk of rows per thread with equal pair counts, a force buffer per chunk,
-buffers summed in chunk order, so the same thread count gives the same
-bits (docs/design.md §8).
+inlined (:data:`_BUILT_IN`).  Threads follow :mod:`ase_mlg.parallel` and
+:mod:`ase_mlg.partition`: chunks of rows with equal pair counts handed out
+one at a time, a force buffer per chunk covering only the window of ranks
+the chunk touches, windows summed per rank in chunk order, so the same
+chunks give the same bits (docs/design.md §8).
 """
 
 import math
@@ -20,6 +21,7 @@ from numba import prange
 
 from .pairfunctions import lennard_jones_shifted_r2, lennard_jones_smooth_r2, morse
 from .pairlist import pair_vector
+from .partition import local_rank
 from .parallel import serial_and_parallel, use_threads
 
 __all__ = ["shift_vectors", "pair_vectors"]
@@ -33,20 +35,22 @@ def _pair_sum(pair, args):
     """Energy, forces and virials of a half pair list, one fused pass.
 
     The pair function is a compile-time argument (a numba dispatcher), so it
-    is inlined into the loop.  Rows are split into ``len(rows) - 1`` chunks
-    of about equal pair counts, one per thread; each chunk accumulates
-    into its own buffers ``fbuf[c]`` (and ``ebuf[c]``, ``vbuf[c]`` when
-    per-atom energies or virials are wanted: pass zero-length second axes
-    otherwise), which are then summed in chunk order and scattered to atom
-    order (``forces[order[t]]``).  The result is therefore the same on
-    every run with the same number of chunks.
+    is inlined into the loop.  Rows are split into the chunks of
+    ``chunks`` (:class:`ase_mlg.partition.Chunks`, about equal pair counts);
+    each chunk accumulates into its own window of the buffers (``fbuf`` and
+    ``ebuf``/``vbuf`` when per-atom energies or virials are wanted: pass
+    zero-length arrays otherwise): entry ``offset[c] + local_rank(r)`` is
+    rank ``r`` of chunk ``c``.  The windows are then summed per rank in
+    chunk order and scattered to atom order (``forces[order[t]]``), so the
+    result is the same on every run with the same chunks, whichever thread
+    ran which chunk.
 
     Parameters
     ----------
     pair : numba function ``(r, p) -> (e, dE/dr)``
     args : tuple
         ``(squared, X, types, rowptr, nbr, code, svec, params, cut2, rmin2,
-        check_rmin, want_w, rows, order, fbuf, ebuf, vbuf, part, forces,
+        check_rmin, want_w, chunks, order, fbuf, ebuf, vbuf, part, forces,
         energies, virials)`` (one tuple, so that the cached entry points of the
         built-in potentials below stay one line each):
     want_w : bool
@@ -68,6 +72,9 @@ def _pair_sum(pair, args):
         Squared cutoff (pairs with ``d**2 > cut2`` are skipped: ASE's LJ
         keeps ``d == rc``) and squared ``rmin`` (closer pairs are counted
         as errors, only with ``check_rmin``), Å².
+    chunks : Chunks
+        The chunks, their windows and the reduction's segments; the kernel
+        writes ``chunks.thread`` (the numba thread of each chunk).
     part : float64[C, 9]
         Out, per chunk: energy (eV), virial (6, eV), the sum of every
         pair's ``dE/dr / r`` (not finite if any pair energy, force or
@@ -79,19 +86,29 @@ def _pair_sum(pair, args):
     order (xx, yy, zz, yz, xz, xy), half of each pair to each atom.
     """
     (squared, X, types, rowptr, nbr, code, svec, params, cut2, rmin2,
-     check_rmin, want_w, rows, order, fbuf, ebuf, vbuf, part, forces,
+     check_rmin, want_w, chunks, order, fbuf, ebuf, vbuf, part, forces,
      energies, virials) = args
-    nchunk = rows.shape[0] - 1
-    want_e = ebuf.shape[1] > 0
-    want_v = vbuf.shape[1] > 0
+    # the chunk tables as locals: numba's parallel lowering cannot read a
+    # named tuple's fields inside prange
+    rows, wlo, _, offset, seg, cover_ptr, cover, thread = chunks
+    n = X.shape[0]
+    nchunk = wlo.shape[0]
+    want_e = ebuf.shape[0] > 0
+    want_v = vbuf.shape[0] > 0
     typed = params.shape[0] > 1  # one species-agnostic row: no lookups
     for c in prange(nchunk):
-        F = fbuf[c]
-        F[:] = 0.0
-        if want_e:
-            ebuf[c, :] = 0.0
-        if want_v:
-            vbuf[c, :, :] = 0.0
+        thread[c] = numba.get_thread_id()
+        base = offset[c]
+        lo = wlo[c]
+        for e in range(base, offset[c + 1]):
+            fbuf[e, 0] = 0.0
+            fbuf[e, 1] = 0.0
+            fbuf[e, 2] = 0.0
+            if want_e:
+                ebuf[e] = 0.0
+            if want_v:
+                for x in range(6):
+                    vbuf[e, x] = 0.0
         # Neumaier-compensated sum of row energies: 10^7 pair energies of
         # both signs would otherwise lose digits to rounding
         energy = 0.0
@@ -106,6 +123,7 @@ def _pair_sum(pair, args):
             x0 = X[t, 0]
             x1 = X[t, 1]
             x2 = X[t, 2]
+            lt = base + local_rank(t, lo, n)
             ta = types[t] if typed else 0
             ft0 = ft1 = ft2 = 0.0
             erow = 0.0
@@ -139,12 +157,13 @@ def _pair_sum(pair, args):
                 ft0 += fx
                 ft1 += fy
                 ft2 += fz
-                F[u, 0] -= fx
-                F[u, 1] -= fy
-                F[u, 2] -= fz
+                lu = base + local_rank(u, lo, n)
+                fbuf[lu, 0] -= fx
+                fbuf[lu, 1] -= fy
+                fbuf[lu, 2] -= fz
                 if want_e:
-                    ebuf[c, t] += 0.5 * e
-                    ebuf[c, u] += 0.5 * e
+                    ebuf[lt] += 0.5 * e
+                    ebuf[lu] += 0.5 * e
                 if not want_w:  # MD needs no virial: 10% of the loop
                     continue
                 # central forces give a symmetric virial: six components
@@ -162,16 +181,16 @@ def _pair_sum(pair, args):
                 v5 -= w5
                 if want_v:
                     for h in range(2):
-                        a = t if h == 0 else u
-                        vbuf[c, a, 0] -= 0.5 * w0
-                        vbuf[c, a, 1] -= 0.5 * w1
-                        vbuf[c, a, 2] -= 0.5 * w2
-                        vbuf[c, a, 3] -= 0.5 * w3
-                        vbuf[c, a, 4] -= 0.5 * w4
-                        vbuf[c, a, 5] -= 0.5 * w5
-            F[t, 0] += ft0
-            F[t, 1] += ft1
-            F[t, 2] += ft2
+                        a = lt if h == 0 else lu
+                        vbuf[a, 0] -= 0.5 * w0
+                        vbuf[a, 1] -= 0.5 * w1
+                        vbuf[a, 2] -= 0.5 * w2
+                        vbuf[a, 3] -= 0.5 * w3
+                        vbuf[a, 4] -= 0.5 * w4
+                        vbuf[a, 5] -= 0.5 * w5
+            fbuf[lt, 0] += ft0
+            fbuf[lt, 1] += ft1
+            fbuf[lt, 2] += ft2
             s = energy + erow
             if abs(energy) >= abs(erow):
                 comp += (energy - s) + erow
@@ -187,25 +206,42 @@ def _pair_sum(pair, args):
         part[c, 6] = v5
         part[c, 7] = check
         part[c, 8] = nlow
-    # sum the chunks' buffers in chunk order, back in atom order
-    for t in prange(X.shape[0]):
-        a = order[t]
-        for x in range(3):
-            s = 0.0
-            for c in range(nchunk):
-                s += fbuf[c, t, x]
-            forces[a, x] = s
-        if want_e:
-            s = 0.0
-            for c in range(nchunk):
-                s += ebuf[c, t]
-            energies[a] = s
-        if want_v:
-            for x in range(6):
-                s = 0.0
-                for c in range(nchunk):
-                    s += vbuf[c, t, x]
-                virials[a, x] = s
+    # sum the windows covering each rank in chunk order, back in atom order;
+    # pieces of ranks, each walking the segments it crosses
+    npiece = nchunk
+    for piece in prange(npiece):
+        t0 = piece * n // npiece
+        t1 = (piece + 1) * n // npiece
+        if t1 <= t0:
+            continue
+        s = np.searchsorted(seg, t0, side="right") - 1
+        for t in range(t0, t1):
+            while seg[s + 1] <= t:
+                s += 1
+            a = order[t]
+            f0 = f1 = f2 = 0.0
+            for w in range(cover_ptr[s], cover_ptr[s + 1]):
+                c = cover[w]
+                e = offset[c] + local_rank(t, wlo[c], n)
+                f0 += fbuf[e, 0]
+                f1 += fbuf[e, 1]
+                f2 += fbuf[e, 2]
+            forces[a, 0] = f0
+            forces[a, 1] = f1
+            forces[a, 2] = f2
+            if want_e:
+                es = 0.0
+                for w in range(cover_ptr[s], cover_ptr[s + 1]):
+                    c = cover[w]
+                    es += ebuf[offset[c] + local_rank(t, wlo[c], n)]
+                energies[a] = es
+            if want_v:
+                for x in range(6):
+                    vs = 0.0
+                    for w in range(cover_ptr[s], cover_ptr[s + 1]):
+                        c = cover[w]
+                        vs += vbuf[offset[c] + local_rank(t, wlo[c], n), x]
+                    virials[a, x] = vs
 
 
 # Threads pay off only on long lists (waking them costs more than a short

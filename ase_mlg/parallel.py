@@ -1,6 +1,28 @@
-"""The package's one threading policy: when a kernel runs on threads, how
-its serial and threaded twins are compiled, and how chunks of work are
-handed to Python threads (docs/design.md §8).
+"""The package's one threading policy: which threading layer numba uses,
+when a kernel runs on threads, how its serial and threaded twins are
+compiled, and how chunks of work are handed to Python threads
+(docs/design.md §8).
+
+The threading layer
+-------------------
+ase-mlg wants numba's TBB layer: it scales, launches in microseconds, and
+is both fork-safe (the RDF backends and dask fork) and thread-safe (dask
+workers and user threads launch kernels concurrently).  numba's ``tbbpool``
+extension links ``libtbb.so.12`` by name with no RPATH, and the ``tbb``
+wheel installs it into ``<prefix>/lib``, which is off the loader's path in
+a virtual environment: from a plain ``pip install`` TBB never loaded.
+Importing this module therefore loads ``libtbb`` by its full path from the
+installed ``tbb`` distribution first (the loader then resolves
+``tbbpool``'s dependency by its soname), selects ``"tbb"`` and starts the
+layer, so :data:`LAYER` is the layer that really runs.
+
+Where TBB cannot load (no ``tbb`` wheel for the platform), one
+:class:`ThreadingLayerWarning` says what is missing and ase-mlg uses
+numba's ``workqueue`` layer, which is fork-safe but not thread-safe: its
+threaded kernels are then launched one at a time under a lock
+(:data:`SERIALISED`), so concurrent use still never crashes.  A user's
+``NUMBA_THREADING_LAYER`` is respected (and serialised the same way if it
+is workqueue).  :func:`config` / ``ase_mlg.show_config()`` report it all.
 
 When to thread
 --------------
@@ -8,7 +30,7 @@ Waking threads costs microseconds per launch (TBB: ~6 µs, measured), and
 an MD step launches tens of kernels, so short work runs serially.  The
 break-even point depends on the work per item, so there is one threshold
 per kind of item, all in :data:`THRESHOLDS` and read at call time through
-:func:`use_threads` (a test may patch them):
+:func:`use_threads`:
 
 * ``"sites"``: grid sites of a swap pass, a follow or a template scan;
 * ``"atoms"``: atoms of a query, a gather or a row partition;
@@ -29,23 +51,22 @@ threaded dispatcher then loads the serial machine code (measured: one
 thread id inside ``prange``) or crashes when the entry was written by the
 other.  :func:`serial_and_parallel` gives the threaded twin its own name.
 
-The threading layer
--------------------
-Importing this module (the grid does, so ``import ase_mlg`` does) selects
-numba's fork-safe layer (TBB) unless ``NUMBA_THREADING_LAYER`` is set, and
-lets idle OpenMP threads sleep (see the comments below).
-
 Python threads
 --------------
 Kernels that fill their own slice of a shared output (the query's chunks
 of blocks, the full list's groups of rows) are serial numba functions that
-release the GIL, run on a small thread pool by :func:`run_chunks`.  The
-pool is dropped in a forked child, which inherits the executor but not its
-threads.
+release the GIL, run on a small thread pool by :func:`run_chunks`.  One
+pool per thread count, created under a lock and never shut down while
+another caller may use it; the pools are dropped in a forked child, which
+inherits the executors but not their threads.
 """
 
+import ctypes
 import os
+import sys
+import threading
 import types
+import warnings
 
 # numba's OpenMP threads spin while idle by default; on a 2-core machine that
 # starves the main thread between parallel kernels (measured: serial swap
@@ -54,20 +75,88 @@ import types
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numba  # noqa: E402
+from numba import prange  # noqa: E402
 
-# numba's threading layer: a fork-safe one, chosen before any parallel kernel
-# runs, unless the user chose (NUMBA_THREADING_LAYER).  numba's default on
-# Linux is GNU OpenMP, which kills a forked child that launches a parallel
-# kernel; multiprocessing/dask workers fork (and must, to run from a plain
-# script, ``python -c`` or a notebook).  'forksafe' is numba's TBB layer (the
-# ``tbb`` package, a dependency) and, where TBB cannot load, 'workqueue'.
-# Measured: a trivial prange kernel on 2 threads costs 6 us per launch under
-# TBB (GNU OpenMP 26 us, workqueue 127 us).
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    numba.config.THREADING_LAYER = "forksafe"
-
-__all__ = ["THRESHOLDS", "use_threads", "threads_for", "serial_and_parallel",
+__all__ = ["THRESHOLDS", "LAYER", "SERIALISED", "ThreadingLayerWarning",
+           "config", "show_config", "dynamic_schedule", "use_threads", "threads_for", "serial_and_parallel",
            "run_chunks", "reduction_chunks"]
+
+
+class ThreadingLayerWarning(RuntimeWarning):
+    """numba's intended threading layer (TBB) could not load."""
+
+
+INTENDED_LAYER = "tbb"
+_TBB_NAMES = ("libtbb.so.12", "libtbb.12.dylib", "tbb12.dll")
+
+
+def _tbb_candidates():
+    """Full paths of ``libtbb`` that the installed ``tbb`` distribution (or
+    the environment's prefix) provides."""
+    out = []
+    try:
+        from importlib.metadata import PackageNotFoundError, distribution
+        try:
+            dist = distribution("tbb")
+            out += [dist.locate_file(f) for f in (dist.files or ())
+                    if f.name in _TBB_NAMES]
+        except PackageNotFoundError:
+            pass
+    except ImportError:  # pragma: no cover - importlib.metadata is stdlib
+        pass
+    for prefix in dict.fromkeys((sys.prefix, sys.base_prefix)):
+        for sub in ("lib", "Library/bin"):
+            out += [os.path.join(prefix, sub, n) for n in _TBB_NAMES]
+    return [str(p) for p in out if os.path.exists(p)]
+
+
+def _load_tbb():
+    """Make numba's ``tbbpool`` importable; None on success, else why not."""
+    try:
+        import numba.np.ufunc.tbbpool  # noqa: F401
+        return None
+    except ImportError as err:
+        first = str(err)
+    candidates = _tbb_candidates()
+    if not candidates:
+        return (f"numba's TBB layer needs libtbb ({first}); no 'tbb' package "
+                f"is installed for this platform")
+    for path in candidates:
+        try:
+            ctypes.CDLL(path, mode=getattr(ctypes, "RTLD_GLOBAL", 0))
+            import numba.np.ufunc.tbbpool  # noqa: F401,F811
+            return None
+        except (OSError, ImportError) as err:
+            first = f"{path}: {err}"
+    return f"numba's TBB layer did not load ({first})"
+
+
+def _start_layer():
+    """Choose, start and verify numba's threading layer; returns
+    ``(layer, problem)``."""
+    from numba.np.ufunc import parallel as _npar
+    problem = None
+    if "NUMBA_THREADING_LAYER" not in os.environ and not _npar._is_initialized:
+        problem = _load_tbb()
+        numba.config.THREADING_LAYER = INTENDED_LAYER if problem is None else "workqueue"
+    # start the layer now (no kernel is compiled): numba_threading_layer()
+    # then names what really runs, and a failure shows at import, not in
+    # the middle of an MD run
+    _npar._launch_threads()
+    return numba.threading_layer(), problem
+
+
+LAYER, _PROBLEM = _start_layer()
+#: Threaded kernels are launched one at a time: the layer is not thread-safe.
+SERIALISED = LAYER == "workqueue"
+_LAUNCH_LOCK = threading.Lock()
+if _PROBLEM is not None:
+    warnings.warn(f"ase-mlg: {_PROBLEM}. Using numba's '{LAYER}' layer instead: "
+                  f"threaded kernels launched from several Python threads (dask "
+                  f"workers, thread pools) run one at a time, and it is slower "
+                  f"(~130 µs a launch against TBB's ~6 µs). Install TBB "
+                  f"('pip install tbb') where it exists for the platform.",
+                  ThreadingLayerWarning, stacklevel=2)
 
 #: Work sizes from which kernels run threaded (measured on 2 and 16 cores:
 #: below these, thread hand-offs cost more than they save).
@@ -94,6 +183,20 @@ def reduction_chunks(n, per_chunk):
     return int(max(1, min(8 * numba.get_num_threads(), n // per_chunk + 1)))
 
 
+class _Serialised:
+    """A threaded dispatcher launched under the process-wide lock (the
+    workqueue layer aborts the process on concurrent launches)."""
+
+    def __init__(self, dispatcher):
+        self.dispatcher = dispatcher
+        self.__name__ = dispatcher.__name__
+        self.__doc__ = dispatcher.__doc__
+
+    def __call__(self, *args):
+        with _LAUNCH_LOCK:
+            return self.dispatcher(*args)
+
+
 def serial_and_parallel(func, cache=True, **flags):
     """``(serial, threaded)`` numba dispatchers of ``func``.
 
@@ -106,6 +209,12 @@ def serial_and_parallel(func, cache=True, **flags):
         On-disk cache for both twins (separate entries).
     **flags
         Further ``numba.njit`` options (``nogil``, ``error_model``, ...).
+
+    Notes
+    -----
+    Under a layer that is not thread-safe (:data:`SERIALISED`) the threaded
+    twin is wrapped so that its launches hold a process-wide lock; call it
+    from Python only.
     """
     twin = types.FunctionType(func.__code__, func.__globals__,
                               func.__name__ + "_threaded", func.__defaults__,
@@ -113,31 +222,136 @@ def serial_and_parallel(func, cache=True, **flags):
     twin.__qualname__ = func.__qualname__ + "_threaded"
     twin.__module__ = func.__module__
     twin.__doc__ = func.__doc__
+    threaded = numba.njit(cache=cache, parallel=True, **flags)(twin)
     return (numba.njit(cache=cache, **flags)(func),
-            numba.njit(cache=cache, parallel=True, **flags)(twin))
+            _Serialised(threaded) if SERIALISED else threaded)
 
 
-_POOL = [None, 0]
+# -- the Python thread pools ---------------------------------------------------
+_POOLS = {}
+_POOL_LOCK = threading.Lock()
 
 
-def _reset_pool():
-    _POOL[0], _POOL[1] = None, 0
+def _reset_pools():
+    global _POOL_LOCK, _LAUNCH_LOCK
+    _POOLS.clear()
+    _POOL_LOCK = threading.Lock()
+    _LAUNCH_LOCK = threading.Lock()
 
 
 if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_reset_pool)
+    os.register_at_fork(after_in_child=_reset_pools)
+
+
+def _pool(nth):
+    with _POOL_LOCK:
+        pool = _POOLS.get(nth)
+        if pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+            pool = _POOLS[nth] = ThreadPoolExecutor(nth, thread_name_prefix="ase_mlg")
+        return pool
 
 
 def run_chunks(func, args_of, nchunk, nth):
     """Run ``func(*args_of(ch))`` for every chunk ``ch`` on ``nth`` Python
-    threads (``func`` must release the GIL); results in chunk order."""
+    threads (``func`` must release the GIL); results in chunk order.  Safe
+    to call from several Python threads at once."""
     nth = min(nth, nchunk)
     if nth == 1:
         return [func(*args_of(ch)) for ch in range(nchunk)]
-    if _POOL[1] != nth:
-        from concurrent.futures import ThreadPoolExecutor
-        if _POOL[0] is not None:
-            _POOL[0].shutdown(wait=False)
-        _POOL[0] = ThreadPoolExecutor(nth, thread_name_prefix="ase_mlg")
-        _POOL[1] = nth
-    return list(_POOL[0].map(lambda ch: func(*args_of(ch)), range(nchunk)))
+    return list(_pool(nth).map(lambda ch: func(*args_of(ch)), range(nchunk)))
+
+
+class dynamic_schedule:
+    """Context for launching threaded kernels: iterations of ``prange`` are
+    handed out one at a time (numba's chunk size 1) instead of in one
+    static block per thread, so a thread that wakes late takes a smaller
+    share instead of leaving its whole block to the others (static blocks
+    made the 2-thread force call bimodal across processes); under
+    :data:`SERIALISED` it also holds the launch lock.  numba's chunk size
+    is per Python thread, and is restored on exit."""
+
+    def __enter__(self):
+        if SERIALISED:
+            _LAUNCH_LOCK.acquire()
+        self._old = numba.set_parallel_chunksize(1)
+        return self
+
+    def __exit__(self, *exc):
+        numba.set_parallel_chunksize(self._old)
+        if SERIALISED:
+            _LAUNCH_LOCK.release()
+        return False
+
+
+# -- what runs -------------------------------------------------------------------
+@numba.njit(parallel=True, cache=True)
+def _thread_probe(ids, spin):
+    # each iteration records the numba thread that ran it; the spin keeps
+    # every thread busy long enough for the pool's workers to take a share
+    for c in prange(ids.shape[0]):
+        ids[c] = numba.get_thread_id()
+        x = 0.0
+        for k in range(spin):
+            x += 1e-9 * k * x + 1.0
+        if x < 0.0:
+            ids[c] = -1
+
+
+def config(probe=True):
+    """What the package runs with, from inside this process.
+
+    Parameters
+    ----------
+    probe : bool
+        Also run a threaded probe kernel (about 20 ms) and count the
+        distinct numba threads that ran its iterations.
+
+    Returns
+    -------
+    dict
+        ``threading_layer`` (numba's, as it runs), ``intended_layer``,
+        ``problem`` (why the intended layer did not load, or None),
+        ``serialised`` (threaded launches hold a lock), ``threads``
+        (numba's thread count), ``cpus`` (usable by this process),
+        ``probe_threads`` (distinct thread ids in the probe, or None), and
+        the versions of python, numba, numpy, ase and tbb.
+    """
+    import numpy as np
+    from importlib.metadata import PackageNotFoundError, version
+
+    def ver(name):
+        try:
+            return version(name)
+        except PackageNotFoundError:
+            return None
+
+    out = {"threading_layer": numba.threading_layer(),
+           "intended_layer": INTENDED_LAYER, "problem": _PROBLEM,
+           "serialised": SERIALISED, "threads": numba.get_num_threads(),
+           "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+           else os.cpu_count(),
+           "probe_threads": None, "python": sys.version.split()[0]}
+    for name in ("ase-mlg", "numba", "numpy", "ase", "tbb"):
+        out[name] = ver(name)
+    if probe:
+        ids = np.full(8 * out["threads"], -1, np.int64)
+        with dynamic_schedule():
+            _thread_probe(ids, 2_000_000)
+        out["probe_threads"] = int(len(np.unique(ids)))
+    return out
+
+
+def show_config(file=None):
+    """Print :func:`config` (the threading layer, thread counts, whether a
+    threaded kernel really ran on several threads, versions)."""
+    c = config()
+    lines = [f"ase-mlg {c['ase-mlg']}  python {c['python']}  numba {c['numba']}  "
+             f"numpy {c['numpy']}  ase {c['ase']}  tbb {c['tbb']}",
+             f"threading layer: {c['threading_layer']} (intended: {c['intended_layer']})"
+             + ("; launches serialised (the layer is not thread-safe)" if c["serialised"] else ""),
+             f"threads: {c['threads']} numba threads on {c['cpus']} usable CPUs; "
+             f"a threaded probe kernel ran on {c['probe_threads']} of them"]
+    if c["problem"]:
+        lines.append(f"problem: {c['problem']}")
+    print("\n".join(lines), file=file)

@@ -77,7 +77,8 @@ from .pairfunctions import (lennard_jones_shifted, lennard_jones_shifted_r2,
                             lennard_jones_smooth, lennard_jones_smooth_r2, morse)
 from .pairsum import (_BAD_DISTANCE, _BELOW_RMIN, _BUILT_IN, _GENERIC,
                       _NON_FINITE, _first_bad_pair)
-from .parallel import threads_for
+from .parallel import dynamic_schedule, threads_for
+from .partition import RowChunks, chunk_count
 
 __all__ = [
     'PairPotential',
@@ -424,10 +425,10 @@ class PairPotential:
         return res
 
     def sum_pairs(self, X, types, rowptr, nbr, code, svec, order,
-                  energies=False, virials=False, virial=True, threads=None):
+                  energies=False, virials=False, virial=True, chunks=None):
         """Energy, forces and virials over a half list in compressed rows.
 
-        The calculator's path (:class:`ase_mlg.query.PairList` in grid
+        The calculator's path (:class:`ase_mlg.pairlist.PairList` in grid
         order).  Pair ``q`` of row ``t`` is
         ``D = X[nbr[q]] - X[t] + svec[code[q]]``; results come back in atom
         order, row ``t`` being atom ``order[t]``.
@@ -449,9 +450,12 @@ class PairPotential:
         virial : bool
             Return the total ``virial``; MD without a barostat needs none
             (skipping it saves a tenth of the time).
-        threads : int, optional
-            Chunks (threads); default numba's thread count on long lists,
-            1 on short ones.  Same count, same bits.
+        chunks : ase_mlg.partition.RowChunks or int, optional
+            The chunks of rows the work is cut into (a ``RowChunks`` of
+            this list is reused with its buffers from call to call; the
+            calculator keeps one per list), or their number.  Default:
+            :func:`ase_mlg.partition.chunk_count` for numba's thread count
+            on long lists, 1 on short ones.  Same chunks, same bits.
 
         Returns
         -------
@@ -461,12 +465,11 @@ class PairPotential:
         """
         n = len(order)
         m = int(rowptr[-1]) if len(rowptr) else 0
-        if threads is None:
-            threads = threads_for("pairs", m)
-        nchunk = max(1, min(int(threads), n))
-        # rows in chunks of about equal pair counts
-        rows = np.searchsorted(rowptr, np.linspace(0, m, nchunk + 1)).astype(np.int64)
-        rows[0], rows[-1] = 0, n
+        if chunks is None:
+            chunks = chunk_count(m, threads_for("pairs", m))
+        if not isinstance(chunks, RowChunks):
+            chunks = RowChunks(rowptr, nbr, max(1, min(int(chunks), max(n, 1))))
+        nchunk = chunks.nchunk
         if self.pair in _BUILT_IN:
             kernel = _BUILT_IN[self.pair][nchunk > 1]
         else:
@@ -479,10 +482,10 @@ class PairPotential:
                 bool(virial or virials))
         part = np.zeros((nchunk, 9))
         try:
-            kernel(args + (rows, order, np.empty((nchunk, n, 3)),
-                           np.empty((nchunk, len(e_out))),
-                           np.empty((nchunk, len(v_out), 6)), part,
-                           out['forces'], e_out, v_out))
+            fbuf, ebuf, vbuf = chunks.buffers(energies, virials)
+            with dynamic_schedule():
+                kernel(args + (chunks.arrays, order, fbuf, ebuf, vbuf, part,
+                               out['forces'], e_out, v_out))
             if part[:, 8].any() or not np.isfinite(part[:, [0, 7]]).all():
                 q, why = _first_bad_pair(self.pair, *args[:-2])
                 if q < 0:
