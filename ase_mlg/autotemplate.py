@@ -15,8 +15,9 @@ keyed by ``(i, j, cell shift)``.
   a candidate misses; :func:`energy_forces` / :func:`force_errors` -- what
   the misses cost in energy and forces.
 * :class:`AutoTemplate` -- the policy behind ``MLGCalculator(template=
-  "auto")``: pick the smallest W that meets a tolerance, re-check it against
-  the exact query every few list builds.
+  "auto")``: the fastest mode that meets a tolerance -- the narrowest W that
+  meets it, or exact mode where that is faster -- re-checked against the
+  exact query every few list builds.
 
 What the policy promises
 ------------------------
@@ -24,9 +25,24 @@ What the policy promises
 uses a width whose missed fraction and/or RMS force error, computed
 against the exact query *at those positions* and for the pairs inside
 the interaction cutoff, is within the tolerance -- or the calculator
-falls back to exact mode.  At a check the smallest such width is taken,
-so W widens when the scene densifies (compression, a crystal melting)
-and narrows again when it thins out.
+uses exact mode.  At a check the narrowest such width is found (it
+widens when the scene densifies -- compression, a crystal melting -- and
+narrows again when it thins out), and it is used only if its list build
+was *measured* faster than the exact query's at that check; otherwise
+the calculator runs in exact mode until the next check.
+
+Where a template pays (measured, ``validation/reports/tradeoff.md``):
+only where a narrow window already finds every pair, i.e. dilute systems
+(the gas: W = 3 at 0.76x the exact build).  In dense liquids and crystals
+the width that misses at most 1e-4 of the pairs is 9 or 11 and scans
+(W^3 - 1) / 2 sites per atom, 2.4-3.7x the exact query's cost, so "auto"
+runs exact mode there.  The timings are one scan each, at the interaction
+cutoff (the calculator builds its lists at ``cutoff + skin``, where the
+exact query has more pairs to find while a template scans the same
+sites: the comparison leans to exact mode), on whatever load the machine
+has at that moment; the first check of a policy times each kind twice
+and keeps the second, so kernel compilation and cache loading are not
+counted.
 
 **Not guaranteed**: anything between checks.  For the next K - 1 list
 builds, and the steps in between that reuse a list (Verlet skin), the
@@ -34,26 +50,36 @@ template is not compared with the exact query; if the grid's local
 order degrades or the density rises within that window, more pairs can
 be missed than the tolerance allows until the next check.  A check costs
 one exact query plus usually two template scans (a few list builds on
-a dense scene); ``check_every=1`` checks every build.
+a dense scene), also while exact mode is in use; ``check_every=1``
+checks every build.
 
 Units: Å, eV, eV/Å.  The measurement built on these pieces (timings, NVE
 drift, tables) is :mod:`ase_mlg.tradeoff`.
 """
 
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from .blocks import BlockIndex
 from .pairsum import pair_vectors
-from .query import exact_pairs
+from .query import exact_pairs, half_list, pair_list
 from .template import template_pairs
 
-__all__ = ["WIDTHS", "parse_widths", "PairSet", "exact_pair_set", "template_pair_set",
-           "compare_pairs", "energy_forces", "force_errors", "AutoTemplate"]
+__all__ = ["WIDTHS", "SELECT", "parse_widths", "PairSet", "exact_pair_set",
+           "template_pair_set", "compare_pairs", "energy_forces", "force_errors",
+           "AutoTemplate"]
 
 #: Template widths measured by default (Boris used 3, 5 and 7).
 WIDTHS = (3, 5, 7, 9, 11)
+
+#: What :class:`AutoTemplate` selects among the modes meeting the tolerance.
+SELECT = {"fastest": "the narrowest passing width, or exact mode where its "
+                     "list build was measured faster",
+          "narrowest": "the narrowest passing width, whatever it costs "
+                       "(exact mode only when none passes)"}
 
 
 def parse_widths(widths):
@@ -178,6 +204,14 @@ def _pair_keys(sets, natoms):
     return np.split(ids.reshape(-1).astype(np.int64), cuts)
 
 
+def _member(keys, sorted_keys):
+    """``np.isin(keys, sorted_keys)`` for an ascending ``sorted_keys``."""
+    if len(sorted_keys) == 0:
+        return np.zeros(len(keys), bool)
+    at = np.minimum(np.searchsorted(sorted_keys, keys), len(sorted_keys) - 1)
+    return sorted_keys[at] == keys
+
+
 def compare_pairs(exact, found, natoms):
     """Which interacting pairs a candidate list misses.
 
@@ -197,8 +231,10 @@ def compare_pairs(exact, found, natoms):
         and ``missed_mask`` (bool (len(exact),), not JSON).
     """
     ke, kf = _pair_keys([exact, found], natoms)
-    missed = ~np.isin(ke, kf)
-    extra = int((~np.isin(kf, ke)).sum())
+    # membership by binary search in the sorted keys (np.isin's unique-based
+    # path cost 40 ms a call at 10^5 pairs, most of a template="auto" check)
+    missed = ~_member(ke, np.sort(kf))
+    extra = int((~_member(kf, np.sort(ke))).sum())
     n_missed = int(missed.sum())
     return {
         "pairs": len(exact), "found": len(found), "missed": n_missed,
@@ -258,8 +294,8 @@ def _parse_tolerance(tolerance):
 
 
 class AutoTemplate:
-    """Pick the smallest template width that meets a tolerance, and keep
-    checking it (the policy behind ``MLGCalculator(template="auto")``).
+    """Run the fastest mode that meets a tolerance, and keep checking it
+    (the policy behind ``MLGCalculator(template="auto")``).
 
     Parameters
     ----------
@@ -276,18 +312,31 @@ class AutoTemplate:
         of atoms changed), the cell changed (NPT: the grid is kept, the
         density is not) or the grid was rebuilt (sweep cap or periodic
         phase lag).
+    select : {"fastest", "narrowest"}
+        ``"fastest"`` (default): the narrowest width meeting the tolerance
+        if its list build (template scan and grid-order list, s) was
+        measured faster than the exact query's at the check, else exact
+        mode.  ``"narrowest"``: that width whatever it costs (Boris's
+        trade, as :mod:`ase_mlg.tradeoff` measures it).
 
     Attributes
     ----------
     width : int or None
         The width in use; None means exact mode (no candidate met the
-        tolerance, e.g. a cutoff that needs several images of a pair).
+        tolerance, e.g. a cutoff that needs several images of a pair, or
+        exact mode was measured faster).
+    candidate : int or None
+        The narrowest width that met the tolerance at the last check (None
+        also when ``select="fastest"`` stopped searching: a failing width
+        already cost more than exact mode).
     history : list of dict
-        One record per check: ``build`` (list-build count), ``width``,
-        ``reason`` ("first", "every K", "new grid", "cell changed",
-        "grid rebuilt"),
-        ``tried`` (widths measured) and the measured ``missed_fraction`` /
-        ``force_rms`` of the chosen width.
+        One record per check: ``build`` (list-build count), ``width`` (the
+        mode chosen, None for exact), ``reason`` ("first", "every K", "new
+        grid", "cell changed", "grid rebuilt"), ``candidate``, ``why``
+        ("template faster", "exact faster", "narrowest", "no width meets the
+        tolerance"), ``tried`` (widths measured), ``seconds`` (``{"exact":
+        s, W: s, ...}``: the measured list builds) and the measured
+        ``missed_fraction`` / ``force_rms`` of the chosen mode (0 for exact).
 
     Notes
     -----
@@ -295,14 +344,20 @@ class AutoTemplate:
     module docstring and docs/design.md §7.
     """
 
-    def __init__(self, tolerance=None, widths=WIDTHS, check_every=10):
+    def __init__(self, tolerance=None, widths=WIDTHS, check_every=10,
+                 select="fastest"):
         self.tolerance = _parse_tolerance(tolerance)
         self.widths = parse_widths(widths)
         if isinstance(check_every, bool) or not isinstance(check_every, (int, np.integer)) \
                 or check_every < 1:
             raise ValueError(f"check_every: expected an int >= 1, got {check_every!r}")
+        if select not in SELECT:
+            raise ValueError(f"select: expected one of {', '.join(map(repr, SELECT))}, "
+                             f"got {select!r}")
         self.check_every = int(check_every)
+        self.select = select
         self.width = None
+        self.candidate = None
         self.history = []
         self._builds = 0
         self._since_check = 0
@@ -310,6 +365,10 @@ class AutoTemplate:
         self._cell = None
         self._grid_rebuilds = None
         self._ref, self._ref_key = None, None
+        self._seconds = {}
+        # kinds of scan timed once already: the first timing of each also
+        # pays numba's compilation or cache load, so it is run twice
+        self._warm = set()
 
     def _reason(self, grid):
         if self._grid is None:
@@ -324,46 +383,85 @@ class AutoTemplate:
             return "every K"
         return None
 
+    def _timed(self, kind, build):
+        """``build()`` and the seconds it took; run twice the first time this
+        policy times ``kind`` ("exact" or "template")."""
+        if kind not in self._warm:
+            build()
+            self._warm.add(kind)
+        t0 = time.perf_counter()
+        out = build()
+        return out, time.perf_counter() - t0
+
     def evaluate(self, grid, potential, numbers, width):
         """Measure one width against the exact query on ``grid``.
 
         Returns a dict with ``missed_fraction``, ``force_rms`` (only if a
-        force tolerance is set) and ``ok`` (all bounds met)."""
-        exact, ref = self._reference(grid, potential, numbers)
-        found = template_pair_set(grid, width, potential, numbers)
+        force tolerance is set), ``seconds`` (the template's list build:
+        scan plus grid-order list, as the calculator builds it) and ``ok``
+        (all bounds met)."""
+        exact, ref, index = self._reference(grid, potential, numbers)
+
+        def build():
+            i, j, S, D = template_pairs(grid, width, potential.cutoff)
+            pair_list(index, i, j, S)
+            return i, j, S, D
+
+        (i, j, S, D), seconds = self._timed("template", build)
+        d = np.sqrt(np.einsum("ij,ij->i", D, D))
+        found = _interacting(potential, numbers, i, j, S, D, d)
         rec = {"missed_fraction": compare_pairs(exact, found, len(numbers))["missed_fraction"]}
         ok = rec["missed_fraction"] <= self.tolerance.get("missed", math.inf)
         if "force" in self.tolerance:
             rec["force_rms"] = force_errors(
                 energy_forces(potential, numbers, found)[1], ref)[0]
             ok = ok and rec["force_rms"] <= self.tolerance["force"]
+        rec["seconds"] = seconds
         rec["ok"] = bool(ok)
+        self._seconds[width] = seconds
         return rec
 
     def _reference(self, grid, potential, numbers):
-        # one exact query (and exact forces) per check, shared by all widths
+        # one exact query (and exact forces) per check, shared by all widths;
+        # timed as the calculator's exact list build (half_list)
         key = (id(grid), grid.stats["updates"], grid.stats["rebuilds"])
         if self._ref_key != key:
-            exact = exact_pair_set(grid, potential, numbers)
+            index = BlockIndex(grid)
+            rc = float(potential.cutoff)
+            pl, seconds = self._timed(
+                "exact", lambda: half_list(index, np.full(grid.natoms, rc), cut=rc))
+            res = pl.arrays(index.positions, index.cell, half=True, quantities="ijS")
+            i, j, S = res["i"], res["j"], res["S"]
+            D, d = pair_vectors(grid.positions, i, j, S.astype(np.float64),
+                                np.ascontiguousarray(grid.box.cell))
+            exact = _interacting(potential, numbers, i, j, S, D, d)
             forces = (energy_forces(potential, numbers, exact)[1]
                       if "force" in self.tolerance else None)
-            self._ref, self._ref_key = (exact, forces), key
+            self._ref, self._ref_key = (exact, forces, index), key
+            self._seconds = {"exact": seconds}
         return self._ref
 
     def _search(self, grid, potential, numbers):
-        """Smallest width meeting the tolerance: (width or None, its record,
+        """Narrowest width meeting the tolerance: (width or None, its record,
         widths tried).
 
         The missed pairs can only shrink as W grows (the W template holds
         every site of the W - 2 one), so the search starts at the width in
-        use: if it passes, narrower ones are tried until one fails; if not,
-        wider ones until one passes.  For the missed fraction this is the
-        answer of an ascending search from the smallest width, usually for
-        two template scans instead of four; the RMS force error need not be
-        monotone in W (missed forces can cancel), so with a force tolerance
-        the result is the narrowest of the passing widths next to the one in
-        use."""
+        use (the narrowest while exact mode runs): if it passes, narrower ones are tried until one
+        fails; if not, wider ones until one passes.  For the missed fraction
+        this is the answer of an ascending search from the smallest width,
+        usually for two template scans instead of four; the RMS force error
+        need not be monotone in W (missed forces can cancel), so with a
+        force tolerance the result is the narrowest of the passing widths
+        next to the one in use.
+
+        With ``select="fastest"`` the upward search stops at a failing
+        width whose scan already took longer than the exact query: a wider
+        template scans more sites, so none could be chosen (the fourth
+        value is then True and the first None)."""
         ws = self.widths
+        # from the width in use; from the cheapest scan while exact mode
+        # runs (a probe that stops as soon as a scan costs more than exact)
         start = ws.index(self.width) if self.width in ws else 0
         tried, best, rec_best = [], None, None
         rec = self.evaluate(grid, potential, numbers, ws[start])
@@ -376,16 +474,18 @@ class AutoTemplate:
                 if not rec["ok"]:
                     break
                 best, rec_best = w, rec
-            return best, rec_best, tried
+            return best, rec_best, tried, False
         for w in ws[start + 1:]:
+            if self.select == "fastest" and rec["seconds"] >= self._seconds["exact"]:
+                return None, rec, tried, True
             rec = self.evaluate(grid, potential, numbers, w)
             tried.append(w)
             if rec["ok"]:
-                return w, rec, tried
-        return None, rec, tried
+                return w, rec, tried, False
+        return None, rec, tried, False
 
     def choose(self, grid, potential, numbers):
-        """Width for the list about to be built on ``grid`` (called by the
+        """Mode for the list about to be built on ``grid`` (called by the
         calculator once per list build, after the grid is up to date).
 
         Returns
@@ -398,14 +498,26 @@ class AutoTemplate:
         if reason is None:
             self._since_check += 1
             return self.width
-        chosen, rec, tried = self._search(grid, potential, numbers)
+        candidate, rec, tried, stopped = self._search(grid, potential, numbers)
+        seconds = dict(self._seconds)
+        if stopped:
+            chosen, why = None, "exact faster"
+        elif candidate is None:
+            chosen, why = None, "no width meets the tolerance"
+        elif self.select == "narrowest":
+            chosen, why = candidate, "narrowest"
+        elif seconds[candidate] < seconds["exact"]:
+            chosen, why = candidate, "template faster"
+        else:
+            chosen, why = None, "exact faster"
         if chosen is None:
             rec = {"missed_fraction": 0.0, **({"force_rms": 0.0}
                                               if "force" in self.tolerance else {})}
-        rec.pop("ok", None)
-        self.width = chosen
+        rec = {k: v for k, v in rec.items() if k not in ("ok", "seconds")}
+        self.width, self.candidate = chosen, candidate
         self.history.append({"build": self._builds, "width": chosen,
-                             "reason": reason, "tried": tried, **rec})
+                             "reason": reason, "candidate": candidate, "why": why,
+                             "tried": tried, "seconds": seconds, **rec})
         self._grid, self._grid_rebuilds = grid, grid.stats["rebuilds"]
         self._cell = grid.box.cell.copy()
         self._since_check = 1
@@ -414,4 +526,5 @@ class AutoTemplate:
 
     def __repr__(self):
         return (f"AutoTemplate(tolerance={self.tolerance}, widths={self.widths}, "
-                f"check_every={self.check_every}, width={self.width})")
+                f"check_every={self.check_every}, select={self.select!r}, "
+                f"width={self.width})")

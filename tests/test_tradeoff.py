@@ -161,11 +161,16 @@ def test_auto_meets_missed_tolerance_on_every_scene(name):
     measured = missed_fraction(atoms, calc.grid, calc.template, pot)
     assert measured <= tol
     assert measured == pytest.approx(calc.auto.history[-1]["missed_fraction"], abs=1e-15)
-    if calc.template is not None and calc.template > 3:
-        # smallest width: the next narrower one does not meet the tolerance
-        assert missed_fraction(atoms, calc.grid, calc.template - 2, pot) > tol
+    # the candidate is the narrowest width meeting the tolerance (used or
+    # not: "auto" runs exact mode where that was measured faster)
+    cand = calc.auto.candidate
+    assert calc.template in (None, cand)
+    if cand is not None:
+        assert missed_fraction(atoms, calc.grid, cand, pot) <= tol
+        if cand > 3:
+            assert missed_fraction(atoms, calc.grid, cand - 2, pot) > tol
     if name == "small":
-        assert calc.template is None  # no width can see the images: exact
+        assert cand is None and calc.template is None  # no width sees the images
 
 
 @pytest.mark.parametrize("name", ["liquid", "sheared", "nanoparticle", "small"])
@@ -210,7 +215,9 @@ def test_auto_widens_when_a_liquid_is_compressed():
     atoms = scene("liquid", 864, rattle=0.3)
     pot = potential_for("liquid")
     tol = tolerance_between(atoms, 7, pot, 1.1)
-    calc = MLGCalculator(pot, template="auto", tolerance=tol)
+    # the width search itself: "narrowest" keeps a passing template even
+    # where exact mode is faster (the default "fastest" would run exact)
+    calc = MLGCalculator(pot, template=AutoTemplate(tol, select="narrowest"))
     atoms.calc = calc
     atoms.get_forces()
     assert calc.template == 7
@@ -230,7 +237,8 @@ def test_auto_rechecks_every_k_builds_when_density_changes():
     pot = potential_for("nanoparticle")
     k = 3
     tol = tolerance_between(atoms, 9, pot, 1.1)
-    calc = MLGCalculator(pot, template=AutoTemplate(tol, check_every=k), skin=0.0)
+    calc = MLGCalculator(pot, template=AutoTemplate(tol, check_every=k, select="narrowest"),
+                         skin=0.0)
     atoms.calc = calc
     atoms.get_forces()
     assert calc.template == 9
