@@ -74,12 +74,13 @@ def jsonable(d):
             for k, v in d.items()}
 
 
-def threading_report(calc):
+def threading_report(calc, probe=False):
     """From inside this worker, after its kernels ran: numba's threading
     layer (None if no threaded kernel was launched), thread count, the
     distinct thread ids of the last threaded force kernel
     (``calc.stats["threads_used"]``, once ase-mlg records it) and
-    ``ase_mlg.parallel.config()`` where it exists."""
+    ``ase_mlg.parallel.config()`` where it exists (with its thread-id probe
+    kernel if ``probe``: the facts worker only, never a measuring one)."""
     import numba
     try:
         layer = numba.threading_layer()
@@ -93,7 +94,7 @@ def threading_report(calc):
     if config is not None:
         try:
             try:
-                cfg = config(probe=False)
+                cfg = config(probe=probe)
             except TypeError:
                 cfg = config()
             out["config"] = jsonable(cfg)

@@ -118,7 +118,7 @@ def mlg_facts_and_warmup(p):
             bench_ase_mlg(atoms, template, q)
             npt_python(atoms, lambda: mlg_calc(template), 2)
         warm[f"jit_{len(atoms)}_s"] = now() - t
-    facts.update(threading_report(calc))
+    facts.update(threading_report(calc, probe=True))
     return {"facts": facts, "warmup": warm}
 
 
@@ -248,8 +248,9 @@ def summary(results):
         s[k] = median_of(good, k)
     for k in ("layer", "threads", "threads_used", "own_threads_used"):
         s[k] = distinct(good, k)
-    builds = [f"{r['builds']}/{r['timed_steps']}" for r in good if r.get("builds") is not None]
-    s["builds"] = "/".join(dict.fromkeys(builds)) or None
+    for k in ("builds", "own_builds"):
+        b = [f"{r[k]}/{r['timed_steps']}" for r in good if r.get(k) is not None]
+        s[k] = ", ".join(dict.fromkeys(b)) or None
     return s
 
 
@@ -281,8 +282,11 @@ def print_header(w, peers, env0, p, procs):
     print(f"- ase-mlg worker (from inside, after its kernels ran): numba threading layer "
           f"{f.get('layer') or 'none started'}, {f.get('threads')} numba threads, runtimes "
           f"loaded: {', '.join(f.get('runtimes') or []) or 'none'}"
-          + (f"; ase_mlg.parallel.config(): {json.dumps(cfg)}" if cfg else
-             "; ase_mlg.parallel.config() not in this version"))
+          + ("; ase_mlg.parallel.config(): " + ", ".join(
+              f"{k} {cfg[k]}" for k in ("threading_layer", "intended_layer", "problem",
+                                        "serialised", "threads", "probe_threads", "tbb",
+                                        "error") if k in cfg)
+             if cfg else "; ase_mlg.parallel.config() not in this version"))
     if "libmpi" in (f.get("runtimes") or []):
         print("- **WARNING: libmpi is loaded in the ase-mlg worker**")
     print(f"- machine: {f.get('cpu', '?')}, {ncpu} cores (os.cpu_count), "
@@ -453,7 +457,7 @@ def breakdown_rows(natoms, threads, by, own):
     rows, m, lmp = [], by.get("mlg-exact"), by.get("lammps")
     loops = [("ase-mlg exact, ASE VelocityVerlet", "parts", "builds")]
     if own:
-        loops.append(("ase-mlg exact, ase_mlg.md.VelocityVerlet", "own_parts", None))
+        loops.append(("ase-mlg exact, ase_mlg.md.VelocityVerlet", "own_parts", "own_builds"))
     for label, key, bkey in loops:
         q = (m or {}).get(key)
         if not q:
@@ -461,7 +465,7 @@ def breakdown_rows(natoms, threads, by, own):
         lb, grid = q.get("list_build"), q.get("grid")
         rows.append([f"{natoms:,}", threads, label, q.get("step"), q.get("kernel"), lb, grid,
                      q.get("gather"), q.get("check"), q.get("integrator"), None,
-                     q.get("other"), q.get("calculator"), m.get(bkey) if bkey else None])
+                     q.get("other"), q.get("calculator"), m.get(bkey)])
     q = (lmp or {}).get("parts") if lmp and "error" not in lmp else None
     if q:
         rows.append([f"{natoms:,}", threads, "LAMMPS lj/cut/omp, `run N`", q.get("loop_ms"),
