@@ -17,7 +17,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["verlet_drift", "verlet_drift_rattle", "verlet_kick",
-           "langevin_noise", "langevin_drift", "langevin_kick"]
+           "langevin_noise", "langevin_drift", "langevin_kick", "no_fixed"]
 
 
 @njit(cache=True)

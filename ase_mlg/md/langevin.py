@@ -3,7 +3,7 @@
 import numpy as np
 from ase.md.langevin import Langevin as _ASELangevin
 
-from . import kernels
+from .kernels import langevin_drift, langevin_kick, langevin_noise, no_fixed
 from .checks import check_dynamics_args, check_langevin_args
 from .fastpath import (as_float_array, compiled_reason, fixed_mask, forces_now,
                        is_mlg, masses_now)
@@ -115,7 +115,7 @@ class Langevin(_ASELangevin):
         xi = as_float_array(xi, n, "rng.standard_normal")
         eta = as_float_array(eta, n, "rng.standard_normal")
         v, rnd_pos, rnd_vel = self._buffers(n)
-        kernels.langevin_noise(xi, eta, c3, c4, c5, rnd_pos, rnd_vel)
+        langevin_noise(xi, eta, c3, c4, c5, rnd_pos, rnd_vel)
         if self.fix_com:
             factor = float(np.sqrt(n / (n - 1.0)))
             # numpy's sums, as ASE takes them, so that the rounding matches
@@ -123,16 +123,16 @@ class Langevin(_ASELangevin):
             svel = (rnd_vel * self.masses).sum(axis=0)
         else:
             factor, spos, svel = 1.0, np.zeros(3), np.zeros(3)
-        fixed = fixed_mask(atoms) if atoms.constraints else kernels.no_fixed(n)
+        fixed = fixed_mask(atoms) if atoms.constraints else no_fixed(n)
         x = atoms.arrays["positions"]
         p = atoms.arrays["momenta"]
         dt = float(self.dt)
-        kernels.langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel, spos, svel,
+        langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel, spos, svel,
                                factor, bool(self.fix_com), c1, c2, dt, fixed)
         # ASE stores the velocity and the noise as attributes (Asap reads them)
         self.v, self.rnd_pos, self.rnd_vel = v, rnd_pos, rnd_vel
         f = forces_now(atoms)
-        kernels.langevin_kick(v, p, f, m, rnd_vel, c1, c2, fixed)
+        langevin_kick(v, p, f, m, rnd_vel, c1, c2, fixed)
         ro = f.view()
         ro.flags.writeable = False
         return ro

@@ -2,7 +2,7 @@
 
 from ase.md.verlet import VelocityVerlet as _ASEVelocityVerlet
 
-from . import kernels
+from .kernels import no_fixed, verlet_drift, verlet_drift_rattle, verlet_kick
 from .checks import check_dynamics_args
 from .fastpath import (as_float_array, compiled_reason, fixed_mask, forces_now,
                        is_mlg, masses_now)
@@ -77,15 +77,15 @@ class VelocityVerlet(_ASEVelocityVerlet):
         dt = float(self.dt)
         if atoms.constraints:
             fixed = fixed_mask(atoms)
-            kernels.verlet_drift_rattle(x, p, f, m, dt, fixed)
+            verlet_drift_rattle(x, p, f, m, dt, fixed)
         else:
-            fixed = kernels.no_fixed(n)
-            kernels.verlet_drift(x, p, f, m, dt)
+            fixed = no_fixed(n)
+            verlet_drift(x, p, f, m, dt)
         # the calculator sees the new positions through check_state (the
         # arrays were written in place, as ASE's set_array does); momenta
         # are stored before the force call, as ASE does for Asap
         f = forces_now(atoms)
-        kernels.verlet_kick(p, f, dt, fixed)
+        verlet_kick(p, f, dt, fixed)
         return _readonly(f)
 
     def _refresh_properties(self):
