@@ -497,30 +497,47 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
             index.natom_blk, index.periods, index.cell, pad, ftol, rat,
             int(mode), float(cut), rs, ts, table, bool(self_interaction),
             slo, sdim)
-    for attempt in range(2):
-        lo = np.zeros(nchunk + 1, np.int64)
-        np.cumsum(caps, out=lo[1:])
-        total_cap = int(lo[-1])
-        if (reuse is not None and reuse.nbr.base is not None
-                and len(reuse.nbr.base) >= total_cap and reuse.code.dtype == dtype):
-            nbr, code = reuse.nbr.base, reuse.code.base
-        else:
-            nbr = np.empty(total_cap, np.int32)
-            code = np.empty(total_cap, dtype)
-        found = np.array(run_chunks(
-            _scan, lambda ch: (bounds[ch], bounds[ch + 1]) + args
-            + (nbr, code, lo[ch], caps[ch], rowcount), nchunk, nth), dtype=np.int64)
-        if (found <= caps).all():
-            break
-        caps = found  # exact now; scan again into room of the right size
-        nbr = code = None
-    # close the gaps between chunks (moving down only, in chunk order)
+    lo = np.zeros(nchunk + 1, np.int64)
+    np.cumsum(caps, out=lo[1:])
+    total_cap = int(lo[-1])
+    if (reuse is not None and reuse.nbr.base is not None
+            and len(reuse.nbr.base) >= total_cap and reuse.code.dtype == dtype):
+        nbr, code = reuse.nbr.base, reuse.code.base
+    else:
+        nbr = np.empty(total_cap, np.int32)
+        code = np.empty(total_cap, dtype)
+    found = np.array(run_chunks(
+        _scan, lambda ch: (bounds[ch], bounds[ch + 1]) + args
+        + (nbr, code, lo[ch], caps[ch], rowcount), nchunk, nth), dtype=np.int64)
     offs = np.zeros(nchunk + 1, np.int64)
     np.cumsum(found, out=offs[1:])
-    for ch in range(1, nchunk):
-        if offs[ch] != lo[ch] and found[ch]:
-            nbr[offs[ch]:offs[ch + 1]] = nbr[lo[ch]:lo[ch] + found[ch]]
-            code[offs[ch]:offs[ch + 1]] = code[lo[ch]:lo[ch] + found[ch]]
+    if (found > caps).any():
+        # only the chunks that ran out of room scan again (a uniform guess
+        # misses most at the chunks next to the periodic seam, which keep
+        # the pairs across it: measured, chunk 0 of 16 overflowed and the
+        # whole scan ran twice).  The others are complete: their pairs are
+        # copied into the new room, laid out at their final offsets, with
+        # the slack of the next build's guess so that MD reuses it.
+        over = found > caps
+        room = int(((1.1 * found).astype(np.int64) + 64).sum())
+        nbr2 = np.empty(max(room, int(offs[-1])), np.int32)
+        code2 = np.empty(len(nbr2), dtype)
+
+        def redo(ch):
+            if over[ch]:
+                return _scan(bounds[ch], bounds[ch + 1], *args, nbr2, code2,
+                             offs[ch], found[ch], rowcount)
+            nbr2[offs[ch]:offs[ch + 1]] = nbr[lo[ch]:lo[ch] + found[ch]]
+            code2[offs[ch]:offs[ch + 1]] = code[lo[ch]:lo[ch] + found[ch]]
+            return found[ch]
+        run_chunks(redo, lambda ch: (ch,), nchunk, nth)
+        nbr, code = nbr2, code2
+    else:
+        # close the gaps between chunks (moving down only, in chunk order)
+        for ch in range(1, nchunk):
+            if offs[ch] != lo[ch] and found[ch]:
+                nbr[offs[ch]:offs[ch + 1]] = nbr[lo[ch]:lo[ch] + found[ch]]
+                code[offs[ch]:offs[ch + 1]] = code[lo[ch]:lo[ch] + found[ch]]
     m = int(offs[-1])
     rowptr = np.zeros(n + 1, np.int64)
     np.cumsum(rowcount, out=rowptr[1:])
