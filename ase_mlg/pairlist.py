@@ -118,24 +118,32 @@ class PairList:
         pl = self
         n = pl.natoms
         want = {q: (q in quantities) for q in "jdDS"}
-        X = np.ascontiguousarray(positions[pl.order]) if n else np.zeros((0, 3))
         nth = threads_for("atoms", n)
+        X = np.empty((n, 3))
         ngroup = max(1, min(NGROUP, n))
         rows = np.linspace(0, n, ngroup + 1).astype(np.int64)
+        run_chunks(_take_rows, lambda g: (positions, pl.order, rows[g], rows[g + 1], X),
+                   ngroup, nth)
         if half:
             cur = np.zeros(0, np.int64)
             m = len(pl)
         else:
-            # every group of rows counts its pairs per atom in its own row of
-            # the table, so each group gets its own cursor into every atom
+            # every group of rows counts its pairs per rank in its own row of
+            # the table, so each group gets its own cursor into every atom's
+            # range of the output.  Cursors are indexed by rank, not atom: a
+            # row's neighbours are near it in rank, so the cursor table is
+            # read and written locally (by atom it was a random access per
+            # pair with shuffled atoms)
             cur = np.zeros((ngroup, n), dtype=np.int64)
             run_chunks(_count_full, lambda g: (pl.rowptr, pl.nbr, pl.code,
-                                                pl.zero_code, pl.order, rows[g],
+                                                pl.zero_code, rows[g],
                                                 rows[g + 1], cur[g]), ngroup, nth)
             start = np.zeros(n + 1, dtype=np.int64)
-            np.cumsum(cur.sum(axis=0), out=start[1:])
-            np.cumsum(cur, axis=0, out=cur)
-            _cursor(cur, start)
+            run_chunks(_atom_totals, lambda g: (cur, pl.order, rows[g], rows[g + 1],
+                                                start), ngroup, nth)
+            np.cumsum(start, out=start)
+            run_chunks(_cursor, lambda g: (cur, pl.order, start, rows[g], rows[g + 1]),
+                       ngroup, nth)
             m = int(start[-1])
         res = {"i": np.empty(m, np.int64)}
         out = {"j": _E_I, "d": _E_F, "D": _E_2, "S": _E_2I}
@@ -149,8 +157,6 @@ class PairList:
                                not half, cur[g] if not half else cur, res["i"],
                                out["j"], out["d"], out["D"], out["S"], want["j"],
                                want["d"], want["D"], want["S"]), ngroup, nth)
-        if not half:
-            _repeat_index(start, res["i"])
         return res
 
 
@@ -212,15 +218,35 @@ _partition_serial, _partition_threaded = serial_and_parallel(_partition_rows)
 
 
 @njit(cache=True, nogil=True)
-def _count_full(rowptr, nbr, code, zero_code, order, r0, r1, cnt):
-    """Pairs each atom gets from rows [r0, r1) of a half list written at
+def _count_full(rowptr, nbr, code, zero_code, r0, r1, cnt):
+    """Pairs each rank gets from rows [r0, r1) of a half list written at
     both atoms (the mirror of a self pair (i, i, 0) is itself)."""
     for t in range(r0, r1):
-        cnt[order[t]] += rowptr[t + 1] - rowptr[t]
+        cnt[t] += rowptr[t + 1] - rowptr[t]
         for p in range(rowptr[t], rowptr[t + 1]):
             u = nbr[p]
             if not (u == t and code[p] == zero_code):
-                cnt[order[u]] += 1
+                cnt[u] += 1
+
+
+@njit(cache=True, nogil=True)
+def _take_rows(positions, order, r0, r1, X):
+    """``X[t] = positions[order[t]]`` for ranks [r0, r1)."""
+    for t in range(r0, r1):
+        a = order[t]
+        for c in range(3):
+            X[t, c] = positions[a, c]
+
+
+@njit(cache=True, nogil=True)
+def _atom_totals(cnt, order, r0, r1, tot):
+    """``tot[atom + 1]`` = pairs of the atom of each rank in [r0, r1), over
+    all groups (an exclusive prefix sum then gives every atom's start)."""
+    for t in range(r0, r1):
+        s = 0
+        for g in range(cnt.shape[0]):
+            s += cnt[g, t]
+        tot[order[t] + 1] = s
 
 
 @njit(cache=True, nogil=True)
@@ -229,10 +255,11 @@ def _write_pairs(rowptr, nbr, code, zero_code, shifts, images, order, X, cell,
                  want_D, want_S):
     """Write the pairs of rows [r0, r1) with D, d, S computed as ASE does.
 
-    ``full``: each pair at both atoms, at the cursors ``cur[atom]``; the
+    ``full``: each pair at both atoms, at the cursors ``cur[rank]``; the
     mirror is ``(j, i, -D, d, -S)`` (bitwise what ASE computes for it:
-    IEEE negation is exact).  Otherwise once, at ``rowptr[t]``, with
-    ``out_i``."""
+    IEEE negation is exact).  Otherwise once, at ``rowptr[t]``.  ``out_i``
+    is written with each entry (not in a pass of its own: one more stream
+    to lines the pair already writes)."""
     for t in range(r0, r1):
         a = order[t]
         for p in range(rowptr[t], rowptr[t + 1]):
@@ -245,11 +272,11 @@ def _write_pairs(rowptr, nbr, code, zero_code, shifts, images, order, X, cell,
             Dx, Dy, Dz = ase_vector(X, u, t, S0, S1_, S2, cell)
             d = np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz)
             if full:
-                q = cur[a]
-                cur[a] = q + 1
+                q = cur[t]
+                cur[t] = q + 1
             else:
                 q = p
-                out_i[q] = a
+            out_i[q] = a
             if want_j:
                 out_j[q] = j
             if want_d:
@@ -264,8 +291,9 @@ def _write_pairs(rowptr, nbr, code, zero_code, shifts, images, order, X, cell,
                 out_S[q, 2] = S2
             if not full or (u == t and k == zero_code):
                 continue
-            q = cur[j]
-            cur[j] = q + 1
+            q = cur[u]
+            cur[u] = q + 1
+            out_i[q] = j
             if want_j:
                 out_j[q] = a
             if want_d:
@@ -280,24 +308,17 @@ def _write_pairs(rowptr, nbr, code, zero_code, shifts, images, order, X, cell,
                 out_S[q, 2] = -S2
 
 
-@njit(cache=True)
-def _cursor(cur, start):
-    """cur holds inclusive prefix sums over groups; make it exclusive and
-    add the atom's start."""
-    nch, n = cur.shape
-    for a in range(n):
-        prev = 0
-        for ch in range(nch):
-            c = cur[ch, a]
-            cur[ch, a] = start[a] + prev
-            prev = c
-
-
-@njit(cache=True)
-def _repeat_index(start, out_i):
-    for a in range(start.shape[0] - 1):
-        for p in range(start[a], start[a + 1]):
-            out_i[p] = a
+@njit(cache=True, nogil=True)
+def _cursor(cur, order, start, r0, r1):
+    """cur holds each group's pair counts per rank; for ranks [r0, r1) make
+    it each group's first position in the atom's range of the output (the
+    atom's start plus the counts of the groups before)."""
+    for t in range(r0, r1):
+        prev = start[order[t]]
+        for g in range(cur.shape[0]):
+            c = cur[g, t]
+            cur[g, t] = prev
+            prev += c
 
 
 _E_I = np.empty(0, np.int64)
