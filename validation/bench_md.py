@@ -248,6 +248,7 @@ def summary(results):
         s[k] = median_of(good, k)
     for k in ("layer", "threads", "threads_used", "own_threads_used"):
         s[k] = distinct(good, k)
+    s["runtimes"] = sorted({x for r in good for x in (r.get("runtimes") or [])})
     for k in ("builds", "own_builds"):
         b = [f"{r[k]}/{r['timed_steps']}" for r in good if r.get(k) is not None]
         s[k] = ", ".join(dict.fromkeys(b)) or None
@@ -258,7 +259,8 @@ def layer_cell(engine, s):
     """The threading layer an ase-mlg worker reported (— for the peers)."""
     if engine not in TEMPLATE or "error" in s:
         return None
-    return s["layer"] or "none started"
+    mpi = " (libmpi loaded!)" if "libmpi" in (s.get("runtimes") or []) else ""
+    return (s["layer"] or "none started") + mpi
 
 
 # --------------------------------------------------------------- sections
@@ -372,7 +374,7 @@ def speed_section(a, p, engines, env0, own):
            + (", and ase_mlg.md.VelocityVerlet (its own loop, a fresh calculator)" if own
               else "") + "; asap3.md.verlet.VelocityVerlet for asap3 (its compiled loop); "
            "LAMMPS `run N` with `fix nve`. LAMMPS has no force call after a move without its "
-           "run set-up: —. Layer and thread ids: reported by each ase-mlg worker from inside "
+           "run set-up: —; its list builds are those of its breakdown run (as many steps). Layer and thread ids: reported by each ase-mlg worker from inside "
            "(numba.threading_layer(); distinct thread ids of the last threaded force kernel, "
            "calc.stats['threads_used']; 'none started': no threaded kernel ran at this size; "
            "a/b: processes disagreed). ASE's LennardJones only up to "
@@ -529,7 +531,8 @@ def memory_section(a, p, engines, env0):
         if not ok(r):
             rows.append([LABEL[e], k, "error: " + (r or {}).get("error", "?")[:60]])
             continue
-        rows.append([LABEL[e], k, layer_cell(e, r), r.get("threads_used"), r.get("before_mb"),
+        rows.append([LABEL[e], r.get("threads", k), layer_cell(e, r), r.get("threads_used"),
+                     r.get("before_mb"),
                      r.get("first_mb"), r["maxrss_mb"], ratio(r["maxrss_mb"], asap),
                      ratio(r["maxrss_mb"], base) if e == "mlg-exact" else None,
                      f"{r.get('steps')}" + ("" if r.get("builds") is None else f" ({r['builds']})")])
