@@ -68,6 +68,7 @@ class Langevin(_ASELangevin):
         check_dynamics_args(atoms, timestep, kwargs.get("loginterval", 1))
         check_langevin_args(temperature, temperature_K, friction, fixcm, rng)
         self.path = None
+        self._fresh = False
         super().__init__(atoms, timestep, temperature=temperature, friction=friction,
                          fixcm=fixcm, temperature_K=temperature_K, rng=rng, **kwargs)
 
@@ -99,6 +100,7 @@ class Langevin(_ASELangevin):
         n = len(atoms)
         reason = compiled_reason(atoms)
         coef = None if reason is not None else self._coefficients(n)
+        self._fresh = False
         if coef is None:
             self.path = "ase: " + (reason or "per-atom friction or temperature")
             return super().step(forces)
@@ -133,12 +135,16 @@ class Langevin(_ASELangevin):
         self.v, self.rnd_pos, self.rnd_vel = v, rnd_pos, rnd_vel
         f = forces_now(atoms)
         langevin_kick(v, p, f, m, rnd_vel, c1, c2, fixed)
+        self._fresh = True
         ro = f.view()
         ro.flags.writeable = False
         return ro
 
     def _refresh_properties(self):
-        # see VelocityVerlet._refresh_properties: caching needs no copy
+        # see VelocityVerlet._refresh_properties
+        if self._fresh and self.nsteps > 0:
+            self._fresh = False
+            return
         if is_mlg(self.atoms) and compiled_reason(self.atoms) is None:
             forces_now(self.atoms)
         else:

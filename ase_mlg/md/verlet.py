@@ -57,6 +57,7 @@ class VelocityVerlet(_ASEVelocityVerlet):
                  loginterval=1, **kwargs):
         check_dynamics_args(atoms, timestep, loginterval)
         self.path = None
+        self._fresh = False
         super().__init__(atoms, timestep, trajectory=trajectory, logfile=logfile,
                          loginterval=loginterval, **kwargs)
 
@@ -65,6 +66,7 @@ class VelocityVerlet(_ASEVelocityVerlet):
         (eV/Å, read-only on the compiled path)."""
         atoms = self.atoms
         reason = compiled_reason(atoms)
+        self._fresh = False
         if reason is not None:
             self.path = "ase: " + reason
             return super().step(forces)
@@ -86,11 +88,18 @@ class VelocityVerlet(_ASEVelocityVerlet):
         # are stored before the force call, as ASE does for Asap
         f = forces_now(atoms)
         verlet_kick(p, f, dt, fixed)
+        self._fresh = True
         return _readonly(f)
 
     def _refresh_properties(self):
         # ASE calls atoms.get_forces() here only to have the results cached
-        # for loggers and observers; with MLGCalculator that needs no copy
+        # for loggers and observers.  Right after a compiled step (irun calls
+        # this next, nsteps > 0) the calculator holds the results of the
+        # current positions already (its second force call); otherwise, with
+        # MLGCalculator, caching needs no copy
+        if self._fresh and self.nsteps > 0:
+            self._fresh = False
+            return
         if is_mlg(self.atoms) and compiled_reason(self.atoms) is None:
             forces_now(self.atoms)
         else:
