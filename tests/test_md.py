@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from ase import units
 from ase.build import bulk
+from ase.calculators.emt import EMT
 from ase.calculators.lj import LennardJones as ASELennardJones
 from ase.constraints import FixAtoms, FixCom
 from ase.io import Trajectory
@@ -119,6 +120,35 @@ def test_langevin_follows_ases_trajectory_for_the_same_seed(kind, fixcm, fixed):
         d.set_friction(0.05 / units.fs)
         d.run(10)
     assert_same(state(ref), state(got))
+
+
+def test_any_calculator_emt_copper():
+    out = []
+    for cls in (ASEVelocityVerlet, VelocityVerlet):
+        atoms = bulk("Cu", "fcc", a=3.6, cubic=True).repeat(3)
+        atoms.rattle(0.05, seed=1)
+        atoms.set_constraint(FixAtoms(indices=[1, 2]))
+        atoms.calc = EMT()
+        cls(atoms, 2 * units.fs).run(20)
+        out.append(state(atoms))
+    assert_same(*out)
+
+
+def test_observers_that_move_atoms_are_seen():
+    """An observer edits positions between steps: the next step's forces
+    are those of the edited positions, as in ASE."""
+    out = []
+    for cls in (ASEVelocityVerlet, VelocityVerlet):
+        atoms = setup("mlg")
+        dyn = cls(atoms, DT)
+
+        def kick(atoms=atoms):
+            atoms.set_positions(atoms.positions + [0.0, 0.0, 0.01])
+            atoms.positions[3] += 0.02         # in place, as scripts do
+        dyn.attach(kick, interval=4)
+        dyn.run(20)
+        out.append(state(atoms))
+    assert_same(*out)
 
 
 def test_a_different_seed_gives_a_different_trajectory():
