@@ -149,7 +149,7 @@ def _start_layer():
 LAYER, _PROBLEM = _start_layer()
 #: Threaded kernels are launched one at a time: the layer is not thread-safe.
 SERIALISED = LAYER == "workqueue"
-_LAUNCH_LOCK = threading.Lock()
+_LAUNCH_LOCK = threading.RLock()  # re-entered: dynamic_schedule around a _Serialised launch
 if _PROBLEM is not None:
     warnings.warn(f"ase-mlg: {_PROBLEM}. Using numba's '{LAYER}' layer instead: "
                   f"threaded kernels launched from several Python threads (dask "
@@ -236,7 +236,7 @@ def _reset_pools():
     global _POOL_LOCK, _LAUNCH_LOCK
     _POOLS.clear()
     _POOL_LOCK = threading.Lock()
-    _LAUNCH_LOCK = threading.Lock()
+    _LAUNCH_LOCK = threading.RLock()  # re-entered: dynamic_schedule around a _Serialised launch
 
 
 if hasattr(os, "register_at_fork"):

@@ -4,7 +4,7 @@
 (:mod:`ase_mlg.cli.demo`); ``ase-mlg rdf`` computes radial distribution
 functions of trajectories (:mod:`ase_mlg.cli.rdf`); ``ase-mlg tradeoff``
 measures the template's speed/accuracy trade (:mod:`ase_mlg.cli.tradeoff`);
-bare ``ase-mlg`` lists the commands, ``ase-mlg --version`` prints the
+``ase-mlg info`` prints the threading layer and versions in use; bare ``ase-mlg`` lists the commands, ``ase-mlg --version`` prints the
 version.  Errors in user input print one line and exit with status 2.
 Progress bars are drawn only when their stream is a terminal.
 
@@ -59,6 +59,13 @@ def _parser():
                         "momenta (default %(default)s)")
     _rdf.add_parser(sub)
     _tradeoff.add_parser(sub)
+    sub.add_parser(
+        "info", help="the threading layer, thread counts and versions in use",
+        description="Print what ase-mlg runs with in this environment: numba's "
+                    "threading layer (and why, if it is not TBB), numba's thread "
+                    "count, whether a threaded probe kernel really ran on several "
+                    "threads, and the versions of ase-mlg, numba, numpy, ASE and "
+                    "tbb (ase_mlg.show_config() in Python).")
     return parser
 
 
@@ -80,6 +87,9 @@ def main(argv=None):
             _rdf.run(args)
         elif args.command == "tradeoff":
             _tradeoff.run(args)
+        elif args.command == "info":
+            from .. import show_config
+            show_config()
     except (ValueError, TypeError, OSError) as exc:
         msg = " ".join(str(exc).split())  # one line, whatever the exception said
         print(f"ase-mlg {args.command}: error: {msg}", file=sys.stderr)
