@@ -165,4 +165,8 @@ def forces_now(atoms):
         calc.results = {}
     if "forces" not in calc.results:
         calc.calculate(atoms, ["forces"], changes)
+        if calc.atoms is None:
+            # a calculate() that did not store the atoms would make every
+            # later check see all changes (a force call per check)
+            calc.atoms = atoms.copy()
     return as_float_array(calc.results["forces"], len(atoms))
