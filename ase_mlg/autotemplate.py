@@ -365,6 +365,7 @@ class AutoTemplate:
         self._cell = None
         self._grid_rebuilds = None
         self._ref, self._ref_key = None, None
+        self._exact = None
         self._seconds = {}
         # kinds of scan timed once already: the first timing of each also
         # pays numba's compilation or cache load, so it is run twice
@@ -400,7 +401,14 @@ class AutoTemplate:
         force tolerance is set), ``seconds`` (the template's list build:
         scan plus grid-order list, as the calculator builds it) and ``ok``
         (all bounds met)."""
-        exact, ref, index = self._reference(grid, potential, numbers)
+        return self._evaluate(grid, potential, numbers, width, False)
+
+    def _evaluate(self, grid, potential, numbers, width, stop_if_slower):
+        """:meth:`evaluate`; with ``stop_if_slower``, a width whose list
+        build took at least the exact query's time is not compared (``ok``
+        is then None): it cannot be chosen, and the comparison costs more
+        than the scans."""
+        index, t_exact = self._exact_build(grid, potential)
 
         def build():
             i, j, S, D = template_pairs(grid, width, potential.cutoff)
@@ -408,6 +416,10 @@ class AutoTemplate:
             return i, j, S, D
 
         (i, j, S, D), seconds = self._timed("template", build)
+        self._seconds[width] = seconds
+        if stop_if_slower and seconds >= t_exact:
+            return {"seconds": seconds, "ok": None}
+        exact, ref = self._reference(grid, potential, numbers)
         d = np.sqrt(np.einsum("ij,ij->i", D, D))
         found = _interacting(potential, numbers, i, j, S, D, d)
         rec = {"missed_fraction": compare_pairs(exact, found, len(numbers))["missed_fraction"]}
@@ -418,18 +430,30 @@ class AutoTemplate:
             ok = ok and rec["force_rms"] <= self.tolerance["force"]
         rec["seconds"] = seconds
         rec["ok"] = bool(ok)
-        self._seconds[width] = seconds
         return rec
 
-    def _reference(self, grid, potential, numbers):
-        # one exact query (and exact forces) per check, shared by all widths;
-        # timed as the calculator's exact list build (half_list)
-        key = (id(grid), grid.stats["updates"], grid.stats["rebuilds"])
-        if self._ref_key != key:
+    def _key(self, grid):
+        return (id(grid), grid.stats["updates"], grid.stats["rebuilds"])
+
+    def _exact_build(self, grid, potential):
+        """The exact query at this check, timed as the calculator's exact
+        list build (half_list); (block index, seconds)."""
+        if self._exact is None or self._exact[0] != self._key(grid):
             index = BlockIndex(grid)
             rc = float(potential.cutoff)
             pl, seconds = self._timed(
                 "exact", lambda: half_list(index, np.full(grid.natoms, rc), cut=rc))
+            self._exact = (self._key(grid), index, pl, seconds)
+            self._seconds = {"exact": seconds}
+        return self._exact[1], self._exact[3]
+
+    def _reference(self, grid, potential, numbers):
+        # the exact query's interacting pairs (and exact forces), built only
+        # when a width is compared, once per check
+        key = self._key(grid)
+        if self._ref_key != key:
+            self._exact_build(grid, potential)
+            _, index, pl, _ = self._exact
             res = pl.arrays(index.positions, index.cell, half=True, quantities="ijS")
             i, j, S = res["i"], res["j"], res["S"]
             D, d = pair_vectors(grid.positions, i, j, S.astype(np.float64),
@@ -437,35 +461,39 @@ class AutoTemplate:
             exact = _interacting(potential, numbers, i, j, S, D, d)
             forces = (energy_forces(potential, numbers, exact)[1]
                       if "force" in self.tolerance else None)
-            self._ref, self._ref_key = (exact, forces, index), key
-            self._seconds = {"exact": seconds}
+            self._ref, self._ref_key = (exact, forces), key
         return self._ref
 
     def _search(self, grid, potential, numbers):
         """Narrowest width meeting the tolerance: (width or None, its record,
-        widths tried).
+        widths tried, stopped).
 
         The missed pairs can only shrink as W grows (the W template holds
         every site of the W - 2 one), so the search starts at the width in
-        use (the narrowest while exact mode runs): if it passes, narrower ones are tried until one
-        fails; if not, wider ones until one passes.  For the missed fraction
-        this is the answer of an ascending search from the smallest width,
-        usually for two template scans instead of four; the RMS force error
-        need not be monotone in W (missed forces can cancel), so with a
-        force tolerance the result is the narrowest of the passing widths
-        next to the one in use.
+        use (the narrowest while exact mode runs): if it passes, narrower
+        ones are tried until one fails; if not, wider ones until one
+        passes.  For the missed fraction this is the answer of an ascending
+        search from the smallest width, usually for two template scans
+        instead of four; the RMS force error need not be monotone in W
+        (missed forces can cancel), so with a force tolerance the result is
+        the narrowest of the passing widths next to the one in use.
 
-        With ``select="fastest"`` the upward search stops at a failing
-        width whose scan already took longer than the exact query: a wider
-        template scans more sites, so none could be chosen (the fourth
-        value is then True and the first None)."""
+        With ``select="fastest"`` the upward search stops at the first width
+        whose list build took at least the exact query's time (``stopped``
+        True, width None): a wider template scans more sites, so none could
+        be chosen.  In a dense scene a check is then one exact query and one
+        W = 3 scan."""
         ws = self.widths
+        fastest = self.select == "fastest"
         # from the width in use; from the cheapest scan while exact mode
         # runs (a probe that stops as soon as a scan costs more than exact)
         start = ws.index(self.width) if self.width in ws else 0
         tried, best, rec_best = [], None, None
-        rec = self.evaluate(grid, potential, numbers, ws[start])
+        rec = self._evaluate(grid, potential, numbers, ws[start],
+                             fastest and self.width is None)
         tried.append(ws[start])
+        if rec["ok"] is None:
+            return None, rec, tried, True
         if rec["ok"]:
             best, rec_best = ws[start], rec
             for w in reversed(ws[:start]):
@@ -476,10 +504,10 @@ class AutoTemplate:
                 best, rec_best = w, rec
             return best, rec_best, tried, False
         for w in ws[start + 1:]:
-            if self.select == "fastest" and rec["seconds"] >= self._seconds["exact"]:
-                return None, rec, tried, True
-            rec = self.evaluate(grid, potential, numbers, w)
+            rec = self._evaluate(grid, potential, numbers, w, fastest)
             tried.append(w)
+            if rec["ok"] is None:
+                return None, rec, tried, True
             if rec["ok"]:
                 return w, rec, tried, False
         return None, rec, tried, False
@@ -521,7 +549,8 @@ class AutoTemplate:
         self._grid, self._grid_rebuilds = grid, grid.stats["rebuilds"]
         self._cell = grid.box.cell.copy()
         self._since_check = 1
-        self._ref, self._ref_key = None, None  # release the reference list
+        # release the reference lists
+        self._ref, self._ref_key, self._exact = None, None, None
         return chosen
 
     def __repr__(self):
