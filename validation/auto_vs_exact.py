@@ -19,7 +19,7 @@ import argparse
 import time
 
 import numpy as np
-from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
+from ase.md.velocitydistribution import thermalize_momenta
 from ase.md.verlet import VelocityVerlet
 from ase import units
 
@@ -53,8 +53,7 @@ def run_scene(name, natoms, steps, repeats):
     pot = potential(kind)
     base = make_scene(name, natoms)
     temp, dt = (100.0, 5.0) if kind != "cu" else (300.0, 2.0)
-    MaxwellBoltzmannDistribution(base, temperature_K=temp,
-                                 rng=np.random.default_rng(0))
+    thermalize_momenta(base, temperature_K=temp, rng=np.random.default_rng(0))
     runs, first = {}, {}
     for mode, template in modes().items():
         atoms = base.copy()

@@ -1,0 +1,92 @@
+"""The demo's timings exclude compilation (issue 18.4).
+
+The demo is run twice in fresh processes sharing an empty numba cache: the
+first run compiles every kernel, the second loads them.  numba reports each
+compilation or cache load under its compiler lock (an event); the timed loops of
+the demo (the grid's walk and the NVE MD, the two loops behind its
+"µs/atom/step" and "ms/step" figures) are found through their progress-bar
+iterables.  None of those events may fall inside a timed loop, and the
+loops' CPU times on the cold and the warm run must agree within 1.5x (CPU
+time: the machine's load moves wall time by more than that between runs).
+"""
+
+import json
+import os
+import subprocess
+import sys
+
+import ase_mlg
+
+TIMED = ("moving atoms", "NVE MD (5 fs)")
+
+DRIVER = r"""
+import json, sys, time
+import tqdm as _tqdm
+from numba.core import event
+
+compiles, locks = [], []
+
+
+class Listener(event.Listener):
+    def __init__(self, log):
+        self.log = log
+
+    def on_start(self, ev):
+        self.log.append(time.perf_counter())
+
+    def on_end(self, ev):
+        pass
+
+
+# a compilation (cache miss), and any compilation or cache load: both take
+# numba's compiler lock
+event.register("numba:compile", Listener(compiles))
+event.register("numba:compiler_lock", Listener(locks))
+real = _tqdm.tqdm
+windows = {}
+
+
+def timed(iterable=None, desc=None, **kw):
+    def loop():
+        w0, c0 = time.perf_counter(), time.process_time()
+        yield from real(iterable, desc=desc, **kw)
+        windows[desc] = (w0, time.perf_counter(), time.process_time() - c0)
+    return loop()
+
+
+_tqdm.tqdm = timed
+from ase_mlg.cli import demo
+rec = demo(natoms=500, steps=150, md_steps=60, out=sys.stderr)
+print(json.dumps({
+    "compiles": len(compiles), "loads": len(locks),
+    "inside": {d: sum(w0 <= t <= w1 for t in locks)
+               for d, (w0, w1, _) in windows.items()},
+    "cpu": {d: c for d, (_, _, c) in windows.items()},
+    "walk": rec["step_seconds_per_atom"], "md": rec["md"]["step_seconds"],
+    "warmup": rec.get("warmup_seconds"), "md_warmup": rec["md"].get("warmup")}))
+"""
+
+
+def _run(cache):
+    root = os.path.dirname(os.path.dirname(os.path.abspath(ase_mlg.__file__)))
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache),
+           "PYTHONPATH": os.pathsep.join([root, os.environ.get("PYTHONPATH", "")])}
+    res = subprocess.run([sys.executable, "-c", DRIVER], env=env, capture_output=True,
+                         text=True, timeout=900, stdin=subprocess.DEVNULL)
+    assert res.returncode == 0, res.stderr[-3000:]
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def test_cold_and_warm_demo_time_the_same_work(tmp_path):
+    cold = _run(tmp_path / "numba-cache")
+    warm = _run(tmp_path / "numba-cache")
+    assert cold["compiles"] > 0 and warm["compiles"] == 0  # cold compiled
+    assert warm["loads"] > 0  # warm loaded the kernels from the cache
+    for desc in TIMED:
+        assert cold["inside"][desc] == 0, (desc, cold)
+        assert warm["inside"][desc] == 0, (desc, warm)
+        ratio = cold["cpu"][desc] / warm["cpu"][desc]
+        assert 1 / 1.5 < ratio < 1.5, (desc, cold["cpu"], warm["cpu"])
+    # the warm-ups went through a list rebuild and swap sweeps
+    assert cold["md_warmup"]["list_builds"] >= 2 and cold["md_warmup"]["sweeps"] > 0
+    assert cold["warmup"] > warm["warmup"]
