@@ -10,27 +10,15 @@ bisect them (the proof is in :mod:`ase_mlg.query` and docs/design.md §6).
 import numpy as np
 from numba import njit
 
+from .parallel import run_chunks, threads_for
+
 __all__ = ["BlockIndex"]
 
 
 @njit(cache=True)
-def _gather(sites, coords, g, positions, cell, periods, shape, bs, nb):
-    """Slot arrays in block-major order and the block/row/slab boxes.
-
-    Returns ``slot_atom`` (-1: hole or padding), ``P`` (3, nslot): Cartesian
-    position of the image that matches the stored coordinate (+inf for
-    holes), ``G`` (3, nslot) stored grid coordinates, ``MS`` (nslot, 3)
-    integer image of the stored coordinate, ``BB`` (nblk, 6) block boxes
-    (lo0, lo1, lo2, hi0, hi1, hi2), ``R2`` (nbx*nby, 6) row boxes, ``S1``
-    (nbx, 6) slab boxes, the global box ``glob`` (6,), the largest deviation
-    of a stored coordinate from an exact image, and ``natom_blk`` (nblk,).
-    """
-    nx, ny, nz = shape[0], shape[1], shape[2]
-    bx, by, bz = bs[0], bs[1], bs[2]
-    nbx, nby, nbz = nb[0], nb[1], nb[2]
-    bsz = bx * by * bz
-    nblk = nbx * nby * nbz
-    nslot = nblk * bsz
+def _slots(nslot, nblk):
+    """Empty slot arrays (-1: hole or padding; +inf positions) and block
+    boxes (empty: +inf lows, -inf highs)."""
     slot_atom = np.full(nslot, -1, dtype=np.int64)
     P = np.full((3, nslot), np.inf)
     G = np.zeros((3, nslot))
@@ -41,8 +29,28 @@ def _gather(sites, coords, g, positions, cell, periods, shape, bs, nb):
             BB[b, c] = np.inf
             BB[b, 3 + c] = -np.inf
     natom_blk = np.zeros(nblk, dtype=np.int64)
+    return slot_atom, P, G, MS, BB, natom_blk
+
+
+@njit(cache=True, nogil=True)
+def _gather(I0, I1, sites, coords, g, positions, cell, periods, shape, bs, nb,
+            slot_atom, P, G, MS, BB, natom_blk):
+    """Fill the slots and block boxes of slabs [I0, I1) (block-major order).
+
+    ``slot_atom`` (-1: hole or padding), ``P`` (3, nslot): Cartesian
+    position of the image that matches the stored coordinate (+inf for
+    holes), ``G`` (3, nslot) stored grid coordinates, ``MS`` (nslot, 3)
+    integer image of the stored coordinate, ``BB`` (nblk, 6) block boxes
+    (lo0, lo1, lo2, hi0, hi1, hi2), ``natom_blk`` (nblk,).  A slab's sites
+    fill only its own slots and blocks, so slabs run on threads.  Returns
+    the largest deviation of a stored coordinate from an exact image.
+    """
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    bx, by, bz = bs[0], bs[1], bs[2]
+    nby, nbz = nb[1], nb[2]
+    bsz = bx * by * bz
     dev = 0.0
-    for i in range(nx):
+    for i in range(I0 * bx, min(I1 * bx, nx)):
         I = i // bx
         ii = i - I * bx
         for j in range(ny):
@@ -89,6 +97,14 @@ def _gather(sites, coords, g, positions, cell, periods, shape, bs, nb):
                 for c in range(3):
                     P[c, t] = positions[a, c] + (m0 * cell[0, c] + m1 * cell[1, c]
                                                  + m2 * cell[2, c])
+    return dev
+
+
+@njit(cache=True)
+def _boxes(BB, nb):
+    """Row boxes ``R2`` (nbx*nby, 6), slab boxes ``S1`` (nbx, 6) and the
+    global box (6,) from the block boxes."""
+    nbx, nby, nbz = nb[0], nb[1], nb[2]
     R2 = np.empty((nbx * nby, 6))
     S1 = np.empty((nbx, 6))
     glob = np.empty(6)
@@ -115,7 +131,7 @@ def _gather(sites, coords, g, positions, cell, periods, shape, bs, nb):
         for c in range(3):
             glob[c] = min(glob[c], S1[I, c])
             glob[3 + c] = max(glob[3 + c], S1[I, 3 + c])
-    return slot_atom, P, G, MS, BB, R2, S1, glob, dev, natom_blk
+    return R2, S1, glob
 
 
 class BlockIndex:
@@ -144,10 +160,19 @@ class BlockIndex:
         n = grid.natoms
         if n:
             g = np.ascontiguousarray(box.fractional(view.positions) * box.heights)
-            (self.slot_atom, self.P, self.G, self.MS, self.BB, self.R2, self.S1,
-             self.glob, self.dev, self.natom_blk) = _gather(
-                view.sites, view.coordinates, g, grid.positions, self.cell,
-                self.periods, shape, bs, nb)
+            nslab = int(nb[0])
+            arrays = _slots(int(np.prod(nb) * np.prod(bs)), int(np.prod(nb)))
+            (self.slot_atom, self.P, self.G, self.MS, self.BB,
+             self.natom_blk) = arrays
+            nth = threads_for("atoms", n)
+            nchunk = min(nslab, 1 if nth == 1 else 4 * nth)
+            cuts = np.linspace(0, nslab, nchunk + 1).astype(np.int64)
+            devs = run_chunks(_gather, lambda ch: (
+                cuts[ch], cuts[ch + 1], view.sites, view.coordinates, g,
+                grid.positions, self.cell, self.periods, shape, bs, nb) + arrays,
+                nchunk, nth)
+            self.dev = max(devs)
+            self.R2, self.S1, self.glob = _boxes(self.BB, nb)
             # ranks: atoms numbered along the blocks (holes skipped)
             filled = self.slot_atom >= 0
             self.order = self.slot_atom[filled]

@@ -506,31 +506,37 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     else:
         nbr = np.empty(total_cap, np.int32)
         code = np.empty(total_cap, dtype)
-    found = np.array(run_chunks(
-        _scan, lambda ch: (bounds[ch], bounds[ch + 1]) + args
-        + (nbr, code, lo[ch], caps[ch], rowcount), nchunk, nth), dtype=np.int64)
+    # a chunk that runs out of room scans again at once, into room of its
+    # exact size, on the thread that found it out (the uniform guess misses
+    # most at the chunk next to the periodic seam, which keeps the pairs
+    # across it: measured, chunk 0 of 16 overflowed).  Chunk 0 starts first,
+    # so its second scan overlaps the other chunks.
+    spill = [None] * nchunk
+
+    def scan(ch):
+        f = _scan(bounds[ch], bounds[ch + 1], *args, nbr, code, lo[ch], caps[ch],
+                  rowcount)
+        if f > caps[ch]:
+            spill[ch] = (np.empty(f, np.int32), np.empty(f, dtype))
+            _scan(bounds[ch], bounds[ch + 1], *args, spill[ch][0], spill[ch][1],
+                  0, f, rowcount)
+        return f
+    found = np.array(run_chunks(scan, lambda ch: (ch,), nchunk, nth), dtype=np.int64)
     offs = np.zeros(nchunk + 1, np.int64)
     np.cumsum(found, out=offs[1:])
-    if (found > caps).any():
-        # only the chunks that ran out of room scan again (a uniform guess
-        # misses most at the chunks next to the periodic seam, which keep
-        # the pairs across it: measured, chunk 0 of 16 overflowed and the
-        # whole scan ran twice).  The others are complete: their pairs are
-        # copied into the new room, laid out at their final offsets, with
-        # the slack of the next build's guess so that MD reuses it.
-        over = found > caps
+    if any(sp is not None for sp in spill):
+        # new room, laid out at the final offsets, with the slack of the next
+        # build's guess (MD reuses it); every chunk copies its pairs in
         room = int(((1.1 * found).astype(np.int64) + 64).sum())
         nbr2 = np.empty(max(room, int(offs[-1])), np.int32)
         code2 = np.empty(len(nbr2), dtype)
 
-        def redo(ch):
-            if over[ch]:
-                return _scan(bounds[ch], bounds[ch + 1], *args, nbr2, code2,
-                             offs[ch], found[ch], rowcount)
-            nbr2[offs[ch]:offs[ch + 1]] = nbr[lo[ch]:lo[ch] + found[ch]]
-            code2[offs[ch]:offs[ch + 1]] = code[lo[ch]:lo[ch] + found[ch]]
-            return found[ch]
-        run_chunks(redo, lambda ch: (ch,), nchunk, nth)
+        def move(ch):
+            src_j, src_c, at = (nbr, code, lo[ch]) if spill[ch] is None else (
+                spill[ch][0], spill[ch][1], 0)
+            nbr2[offs[ch]:offs[ch + 1]] = src_j[at:at + found[ch]]
+            code2[offs[ch]:offs[ch + 1]] = src_c[at:at + found[ch]]
+        run_chunks(move, lambda ch: (ch,), nchunk, nth)
         nbr, code = nbr2, code2
     else:
         # close the gaps between chunks (moving down only, in chunk order)
