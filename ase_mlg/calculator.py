@@ -40,7 +40,7 @@ from .pairsum import shift_vectors
 from .potentials import PairPotential
 from .blocks import BlockIndex
 from .parallel import threads_for
-from .partition import RowChunks, chunk_count
+from .partition import row_chunks
 from .query import half_list, pair_list
 from .tracker import GridTracker
 
@@ -151,6 +151,7 @@ class MLGCalculator(Calculator):
         self._tracker = GridTracker(follow_cell=True, **self.grid_kwargs)
         self._list = None
         self._chunks = None
+        self._chunk_threads = 0
         self._stress_wanted = False
         self.stats = {"calls": 0, "list_builds": 0, "grid_builds": 0,
                       "sweeps": 0, "swaps": 0, "grid_rebuilds": 0,
@@ -323,10 +324,11 @@ class MLGCalculator(Calculator):
             t2 = time.perf_counter()
             timings["list_build"] += t2 - t1
         pl = self._list
-        nchunk = chunk_count(len(pl), threads_for("pairs", len(pl)))
-        if self._chunks is None or self._chunks.nchunk != nchunk:
+        nthreads = threads_for("pairs", len(pl))
+        if self._chunks is None or self._chunk_threads != nthreads:
             # the unit of parallel work, kept with its buffers for the list's life
-            self._chunks = RowChunks(pl.rowptr, pl.nbr, nchunk)
+            self._chunks = row_chunks(pl.rowptr, pl.nbr, nthreads)
+            self._chunk_threads = nthreads
         # the virial costs a tenth of the loop: only for callers that ask
         # for stress (once asked, always: barostats ask after the forces)
         self._stress_wanted |= "stress" in properties or "stresses" in properties

@@ -25,10 +25,10 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
-from .parallel import serial_and_parallel
+from .parallel import serial_and_parallel, threads_for, use_threads
 
-__all__ = ["Chunks", "RowChunks", "chunk_count", "CHUNKS_PER_THREAD",
-           "PAIRS_PER_CHUNK"]
+__all__ = ["Chunks", "RowChunks", "row_chunks", "chunk_count",
+           "CHUNKS_PER_THREAD", "PAIRS_PER_CHUNK", "WINDOW_BUDGET"]
 
 #: Chunks per thread of a threaded pair sum.  Chunks are handed out one at
 #: a time (:class:`ase_mlg.parallel.dynamic_schedule`), so a thread that
@@ -38,6 +38,13 @@ CHUNKS_PER_THREAD = 4
 #: Fewest pairs a chunk should hold (shorter ones cost more in window
 #: zeroing and reduction than they balance).
 PAIRS_PER_CHUNK = 20_000
+#: Most buffer entries, in units of N, that the windows of all chunks may
+#: take before fewer chunks a thread are used (never fewer than one a
+#: thread).  Windows widen as chunks thin (a chunk's halo of neighbours
+#: stays rc + skin deep): on 10^6 argon atoms 8 chunks take 1.4 N, 64 take
+#: 4.4 N and 256 take 13 N, so 64 threads at 4 chunks each would cost 310 MB
+#: of buffers where 64 chunks cost 105 MB.
+WINDOW_BUDGET = 3.0
 _NBIN = 4096  # rank bins of the window search: windows over-cover by < 2 bins
 
 #: The arrays the pair kernel reads (one argument for numba).
@@ -62,9 +69,11 @@ def chunk_count(npairs, nthreads):
     return int(max(1, min(CHUNKS_PER_THREAD * nthreads, by_size)))
 
 
-def _mark_windows(rowptr, nbr, rows, binsize, marks, lo, width):
-    """Window of every chunk: mark the rank bins its rows and their
-    neighbours fall in, then drop the largest cyclic run of empty bins."""
+def _mark_windows(rowptr, nbr, rows, shift, marks, lo, width):
+    """Window of every chunk: mark the rank bins (``2**shift`` ranks each)
+    its rows and their neighbours fall in, then drop the largest cyclic run
+    of empty bins."""
+    binsize = 1 << shift
     n = rowptr.shape[0] - 1
     nbin = marks.shape[1]
     for c in prange(rows.shape[0] - 1):
@@ -79,7 +88,7 @@ def _mark_windows(rowptr, nbr, rows, binsize, marks, lo, width):
         for b in range(r0 // binsize, (r1 - 1) // binsize + 1):
             m[b] = 1
         for q in range(rowptr[r0], rowptr[r1]):
-            m[nbr[q] // binsize] = 1
+            m[nbr[q] >> shift] = 1
         first = r0 // binsize  # a marked bin: start the cyclic scan there
         gap_start = 0
         gap_len = 0
@@ -125,12 +134,11 @@ def _chunks(rowptr, nbr, nchunk):
     if nchunk == 1:
         width[:] = n  # one chunk: the whole list, no search
     else:
-        nbin = min(n, _NBIN)
-        binsize = -(-n // nbin)
-        nbin = -(-n // binsize)
+        shift = max(0, int(np.ceil(np.log2(max(n, 1) / _NBIN))))
+        nbin = -(-n // (1 << shift))
         marks = np.empty((nchunk, nbin), np.uint8)
-        kernel = _mark_threaded if m >= 50_000 else _mark_serial
-        kernel(rowptr, nbr, rows, binsize, marks, lo, width)
+        kernel = _mark_threaded if use_threads("pairs", m) else _mark_serial
+        kernel(rowptr, nbr, rows, shift, marks, lo, width)
     offset = np.zeros(nchunk + 1, np.int64)
     np.cumsum(width, out=offset[1:])
     live = width > 0
@@ -192,6 +200,23 @@ class RowChunks:
         """Bytes of the chunk tables and the buffers allocated so far."""
         return (sum(a.nbytes for a in self.arrays)
                 + sum(b.nbytes for bufs in self._buffers.values() for b in bufs))
+
+
+def row_chunks(rowptr, nbr, nthreads=None):
+    """The :class:`RowChunks` of a half list for ``nthreads`` threads
+    (default: numba's count on long lists, 1 on short ones):
+    :func:`chunk_count` chunks, halved while their windows take more than
+    :data:`WINDOW_BUDGET` x N buffer entries and a thread has more than one."""
+    m = int(rowptr[-1]) if len(rowptr) else 0
+    n = max(len(rowptr) - 1, 1)
+    if nthreads is None:
+        nthreads = threads_for("pairs", m)
+    nchunk = chunk_count(m, nthreads)
+    while True:
+        chunks = RowChunks(rowptr, nbr, nchunk)
+        if chunks.entries <= WINDOW_BUDGET * n or nchunk <= nthreads:
+            return chunks
+        nchunk = max(nthreads, nchunk // 2)
 
 
 @njit(cache=True, inline="always")

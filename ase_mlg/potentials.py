@@ -77,8 +77,8 @@ from .pairfunctions import (lennard_jones_shifted, lennard_jones_shifted_r2,
                             lennard_jones_smooth, lennard_jones_smooth_r2, morse)
 from .pairsum import (_BAD_DISTANCE, _BELOW_RMIN, _BUILT_IN, _GENERIC,
                       _NON_FINITE, _first_bad_pair)
-from .parallel import dynamic_schedule, threads_for
-from .partition import RowChunks, chunk_count
+from .parallel import dynamic_schedule
+from .partition import RowChunks, row_chunks
 
 __all__ = [
     'PairPotential',
@@ -464,9 +464,8 @@ class PairPotential:
             eV, and ``energies`` / ``virials_voigt`` if asked for.
         """
         n = len(order)
-        m = int(rowptr[-1]) if len(rowptr) else 0
         if chunks is None:
-            chunks = chunk_count(m, threads_for("pairs", m))
+            chunks = row_chunks(rowptr, nbr)
         if not isinstance(chunks, RowChunks):
             chunks = RowChunks(rowptr, nbr, max(1, min(int(chunks), max(n, 1))))
         nchunk = chunks.nchunk
