@@ -138,9 +138,11 @@ class MLGCalculator(Calculator):
             # ignore them; a neighbour-list hook ignored would be a silent
             # wrong answer
             raise TypeError(f"MLGCalculator: unexpected keyword argument(s) "
-                            f"{', '.join(map(repr, unknown))} (the calculator "
-                            f"finds its own pairs on its MLG; parameters go "
-                            f"to the potential)")
+                            f"{', '.join(map(repr, unknown))}; MLGCalculator takes "
+                            f"potential, template, skin, grid_kwargs, tolerance, "
+                            f"{', '.join(sorted(_CALCULATOR_KWARGS))} (it finds its "
+                            f"own pairs on its MLG; the potential's parameters go "
+                            f"to the potential, e.g. Morse(epsilon=..., r0=...))")
         self._tolerance = tolerance
         Calculator.__init__(self, **kwargs)
         self.potential = potential

@@ -581,6 +581,17 @@ class PairPotential:
         return f'{kind}({", ".join(f"{k}={v!r}" for k, v in d.items())})'
 
 
+def _refuse_unknown(name, kwargs, accepted):
+    """TypeError for keywords a potential does not take.  ASE's calculators
+    store unknown keywords and ignore them (ASE's precon NEB test builds
+    ``MorsePotential(A=4.0, ...)``); ignoring one here could be a silent
+    wrong answer, so it is refused, naming what is taken."""
+    if kwargs:
+        raise TypeError(f"{name}: unexpected keyword argument(s) "
+                        f"{', '.join(map(repr, sorted(kwargs)))}; {name} takes "
+                        f"{', '.join(accepted)}")
+
+
 def _index_arrays(i, j):
     i = np.asarray(i)
     j = np.asarray(j)
@@ -614,7 +625,9 @@ class LennardJones(PairPotential):
     """
 
     def __init__(self, sigma=1.0, epsilon=1.0, rc=None, ro=None,
-                 smooth=False):
+                 smooth=False, **kwargs):
+        _refuse_unknown('LennardJones', kwargs,
+                        ('sigma', 'epsilon', 'rc', 'ro', 'smooth'))
         sigma = _number('sigma', sigma, 0.0, strict=True)
         epsilon = _number('epsilon', epsilon, 0.0)
         rc = 3 * sigma if rc is None else _number('rc', rc, 0.0, strict=True)
@@ -654,7 +667,9 @@ class Morse(PairPotential):
         Start and end of the cutoff function, **in units of r0**.
     """
 
-    def __init__(self, epsilon=1.0, r0=1.0, rho0=6.0, rcut1=1.9, rcut2=2.7):
+    def __init__(self, epsilon=1.0, r0=1.0, rho0=6.0, rcut1=1.9, rcut2=2.7,
+                 **kwargs):
+        _refuse_unknown('Morse', kwargs, ('epsilon', 'r0', 'rho0', 'rcut1', 'rcut2'))
         epsilon = _number('epsilon', epsilon, 0.0)
         r0 = _number('r0', r0, 0.0, strict=True)
         rho0 = _number('rho0', rho0, 0.0, strict=True)

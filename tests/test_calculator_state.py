@@ -1,0 +1,88 @@
+"""What the calculator keeps between calls (issue 18, points 2 and 9).
+
+ASE's ``get_properties`` (``calculate_properties``) and a bare
+``calc.calculate(atoms)`` pass ``all_changes``; the calculator decides what
+changed from the atoms, so a valid grid and pair list survive.  Keywords a
+potential does not take are refused, and the error says what it takes."""
+
+import numpy as np
+import pytest
+from ase.build import bulk
+from ase.calculators.lj import LennardJones as AseLJ
+from ase.calculators.mixing import SumCalculator
+from ase.md.verlet import VelocityVerlet
+from ase import units
+
+from ase_mlg import MLGCalculator
+from ase_mlg.potentials import LennardJones, Morse
+
+AR = dict(sigma=3.405, epsilon=0.0104, rc=8.5)
+
+
+def argon(n=4, seed=0):
+    atoms = bulk("Ar", "fcc", a=5.72, cubic=True).repeat(n)
+    atoms.rattle(0.05, seed=seed)
+    return atoms
+
+
+def ase_results(atoms):
+    a = atoms.copy()
+    a.calc = AseLJ(**AR, smooth=False)
+    return a.get_potential_energy(), a.get_forces()
+
+
+def test_get_properties_keeps_grid_and_list():
+    atoms = argon()
+    atoms.calc = calc = MLGCalculator(LennardJones(**AR))
+    rng = np.random.default_rng(1)
+    for _ in range(6):
+        atoms.positions += rng.normal(scale=0.005, size=atoms.positions.shape)
+        props = atoms.get_properties(["energy", "forces", "stress"])
+        e, f = ase_results(atoms)
+        assert props["energy"] == pytest.approx(e, rel=1e-12)
+        np.testing.assert_allclose(props["forces"], f, atol=1e-12)
+    assert calc.stats["grid_builds"] == 1 and calc.stats["list_builds"] == 1, calc.stats
+    # a bare calculate(atoms) passes all_changes by default
+    atoms.positions += 0.001
+    calc.calculate(atoms)
+    assert calc.stats["grid_builds"] == 1 and calc.stats["list_builds"] == 1, calc.stats
+
+
+def test_sum_calculator_md_stays_on_one_grid():
+    atoms = argon()
+    atoms.calc = SumCalculator([MLGCalculator(LennardJones(**AR)),
+                                MLGCalculator(Morse(epsilon=1e-4, r0=4.0, rho0=3.0))])
+    VelocityVerlet(atoms, 2 * units.fs).run(20)
+    for calc in atoms.calc.mixer.calcs:
+        assert calc.stats["grid_builds"] == 1, calc.stats
+        assert calc.stats["calls"] >= 20
+
+
+def test_real_changes_still_rebuild():
+    atoms = argon()
+    atoms.calc = calc = MLGCalculator(LennardJones(**AR))
+    atoms.get_potential_energy()
+    # same positions, other numbers: the list's types must be rebuilt
+    atoms.numbers[:5] = 36
+    calc.calculate(atoms, ["energy", "forces"])
+    assert calc.stats["list_builds"] == 2
+    # pbc off: another set of pairs, the answer must be ASE's
+    atoms.numbers[:] = 18
+    atoms.pbc = False
+    calc.calculate(atoms, ["energy", "forces"])
+    e, f = ase_results(atoms)
+    assert calc.results["energy"] == pytest.approx(e, rel=1e-12)
+    np.testing.assert_allclose(calc.results["forces"], f, atol=1e-12)
+    assert calc.stats["list_builds"] == 3
+
+
+@pytest.mark.parametrize("make, names", [
+    (lambda: Morse(A=4.0, epsilon=1.0, r0=2.55), ("'A'", "epsilon, r0, rho0, rcut1, rcut2")),
+    (lambda: LennardJones(sigma=1.0, cutoff=3.0), ("'cutoff'", "sigma, epsilon, rc, ro, smooth")),
+    (lambda: MLGCalculator(Morse(), A=4.0), ("'A'", "potential, template, skin")),
+])
+def test_ignored_keywords_are_refused_naming_what_is_taken(make, names):
+    with pytest.raises(TypeError) as info:
+        make()
+    for name in names:
+        assert name in str(info.value)
