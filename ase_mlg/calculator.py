@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 from ase.calculators.calculator import Calculator, all_changes
-from numba import njit
+from numba import prange
 
 from .autotemplate import AutoTemplate
 from .geometry import as_positions
@@ -39,7 +39,7 @@ from .template import template_pairs
 from .pairsum import shift_vectors
 from .potentials import PairPotential
 from .blocks import BlockIndex
-from .parallel import threads_for
+from .parallel import dynamic_schedule, serial_and_parallel, threads_for, use_threads
 from .partition import row_chunks
 from .query import half_list, pair_list
 from .tracker import GridTracker
@@ -47,22 +47,43 @@ from .tracker import GridTracker
 __all__ = ["MLGCalculator"]
 
 
-@njit(cache=True)
-def _max_deviation(positions, ref, M):
-    """Largest ``|positions - ref @ M|`` (Å): how far atoms have moved
-    beyond the affine map ``M`` of the cell (the identity in NVE)."""
-    worst = 0.0
-    for a in range(positions.shape[0]):
-        s = 0.0
-        for c in range(3):
-            x = positions[a, c] - (ref[a, 0] * M[0, c] + ref[a, 1] * M[1, c]
-                                   + ref[a, 2] * M[2, c])
-            s += x * x
-        if s > worst:
-            worst = s
-        elif not s == s:  # NaN: the list is never valid
-            return np.nan
-    return np.sqrt(worst)
+def _max_deviation(positions, ref, M, worst):
+    """Largest ``|positions - ref @ M|`` (Å) over each of ``len(worst)``
+    chunks of atoms, into ``worst``: how far atoms have moved beyond the
+    affine map ``M`` of the cell (the identity in NVE); NaN if any is NaN."""
+    n = positions.shape[0]
+    nchunk = worst.shape[0]
+    for ch in prange(nchunk):
+        w = 0.0
+        for a in range(ch * n // nchunk, (ch + 1) * n // nchunk):
+            s = 0.0
+            for c in range(3):
+                x = positions[a, c] - (ref[a, 0] * M[0, c] + ref[a, 1] * M[1, c]
+                                       + ref[a, 2] * M[2, c])
+                s += x * x
+            if s > w:
+                w = s
+            elif not s == s:  # NaN: the list is never valid
+                w = np.nan
+                break
+        worst[ch] = np.sqrt(w)
+
+
+# a max is the same whatever the chunking: serial or threaded by size
+_max_deviation_serial, _max_deviation_threaded = serial_and_parallel(_max_deviation)
+
+
+def max_deviation(positions, ref, M):
+    """Largest displacement beyond the cell map ``M`` since ``ref``, Å."""
+    n = len(positions)
+    if use_threads("atoms", n):
+        worst = np.empty(4 * threads_for("atoms", n))
+        with dynamic_schedule():
+            _max_deviation_threaded(positions, ref, M, worst)
+    else:
+        worst = np.empty(1)
+        _max_deviation_serial(positions, ref, M, worst)
+    return np.nan if np.isnan(worst).any() else float(worst.max(initial=0.0))
 
 
 _EYE = np.eye(3)
@@ -243,7 +264,7 @@ class MLGCalculator(Calculator):
         else:
             M = np.linalg.solve(ref_cell, cell)
             smin = float(np.linalg.svd(M, compute_uv=False).min())
-        umax = _max_deviation(positions, self._ref, np.ascontiguousarray(M))
+        umax = max_deviation(positions, self._ref, np.ascontiguousarray(M))
         self._check_displacement(positions, M, umax, cell)
         if self.skin == 0.0:
             return False
