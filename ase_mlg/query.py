@@ -282,10 +282,12 @@ def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, pos, G, MS, BB, R2, S1,
     as the rank of ``u`` and the code of the image ``m`` (``((m0 - slo0) *
     sdim1 + m1 - slo1) * sdim2 + m2 - slo2``; the cell shift of the pair is
     ``S = m + MS[u] - MS[t]``) at ``out_j/out_c[lo:lo + cap]``;
-    ``rowcount[rank of t]`` gets the row length.  Returns the number of
-    pairs found, which may exceed ``cap``: nothing beyond ``cap`` is written
-    and the caller scans again with room.  Runs without the GIL, one call
-    per chunk of blocks on Python threads.
+    ``rowcount[rank of t]`` gets the row length.  Returns ``(end,
+    count)``: blocks ``[b0, end)`` are done, with ``count`` pairs written.
+    ``end < b1`` when block ``end`` ran out of room: nothing beyond ``cap``
+    is written, and the caller scans on from block ``end`` into new room (a
+    short guess costs one block again, not the chunk).  Runs without the
+    GIL, one call per chunk of blocks on Python threads.
     """
     total = 0
     cand = np.empty((64, 4), dtype=np.int64)
@@ -297,6 +299,7 @@ def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, pos, G, MS, BB, R2, S1,
     for A in range(b0, b1):
         if natom_blk[A] == 0:
             continue
+        before = total
         cand, cf, ncand = _prepare(A, cand, cf, qlo, qhi, nb, bsz, slot_atom,
                                    BB, R2, S1, glob, periods, cell, pad, rat,
                                    True)
@@ -381,7 +384,9 @@ def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, pos, G, MS, BB, R2, S1,
                     total += 1
                     n += 1
             rowcount[slot_rank[t]] = n
-    return total
+        if total > cap:
+            return A, before
+    return b1, total
 
 
 def _shift_codes(slo, shi):
@@ -506,36 +511,50 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     else:
         nbr = np.empty(total_cap, np.int32)
         code = np.empty(total_cap, dtype)
-    # a chunk that runs out of room scans again at once, into room of its
-    # exact size, on the thread that found it out (the uniform guess misses
-    # most at the chunk next to the periodic seam, which keeps the pairs
-    # across it: measured, chunk 0 of 16 overflowed).  Chunk 0 starts first,
-    # so its second scan overlaps the other chunks.
-    spill = [None] * nchunk
+    # a chunk that runs out of room scans on into new room from the block
+    # that overflowed, sized from the chunk's own count so far (the uniform
+    # guess misses most at the chunk next to the periodic seam, which keeps
+    # the pairs across it: measured, chunk 0 of 16 overflowed, and rescanning
+    # it whole cost 14 ms on one thread).  segs[ch]: the chunk's pieces.
+    atoms_before = np.concatenate([[0], np.cumsum(index.natom_blk)])
+    segs = [None] * nchunk
 
     def scan(ch):
-        f = _scan(bounds[ch], bounds[ch + 1], *args, nbr, code, lo[ch], caps[ch],
-                  rowcount)
-        if f > caps[ch]:
-            spill[ch] = (np.empty(f, np.int32), np.empty(f, dtype))
-            _scan(bounds[ch], bounds[ch + 1], *args, spill[ch][0], spill[ch][1],
-                  0, f, rowcount)
-        return f
+        b, end_b = bounds[ch], bounds[ch + 1]
+        buf_j, buf_c, at, room = nbr, code, lo[ch], caps[ch]
+        pieces = []
+        total = 0
+        while True:
+            b, k = _scan(b, end_b, *args, buf_j, buf_c, at, room, rowcount)
+            pieces.append((buf_j, buf_c, at, k))
+            total += k
+            if b == end_b:
+                break
+            done = atoms_before[b] - atoms_before[bounds[ch]]
+            rest = atoms_before[end_b] - atoms_before[b]
+            per = total / done if done else 2.0 * caps[ch] / max(1, atoms_in[ch])
+            # the block that overflowed had more than room - k pairs: at least
+            # double that, so that even one huge block gets through
+            room = max(int(1.2 * per * rest) + 64, 2 * (room - k) + 1024)
+            buf_j, buf_c, at = np.empty(room, np.int32), np.empty(room, dtype), 0
+        segs[ch] = pieces
+        return total
     found = np.array(run_chunks(scan, lambda ch: (ch,), nchunk, nth), dtype=np.int64)
     offs = np.zeros(nchunk + 1, np.int64)
     np.cumsum(found, out=offs[1:])
-    if any(sp is not None for sp in spill):
+    if any(len(sp) > 1 for sp in segs):
         # new room, laid out at the final offsets, with the slack of the next
-        # build's guess (MD reuses it); every chunk copies its pairs in
+        # build's guess (MD reuses it); every chunk copies its pieces in
         room = int(((1.1 * found).astype(np.int64) + 64).sum())
         nbr2 = np.empty(max(room, int(offs[-1])), np.int32)
         code2 = np.empty(len(nbr2), dtype)
 
         def move(ch):
-            src_j, src_c, at = (nbr, code, lo[ch]) if spill[ch] is None else (
-                spill[ch][0], spill[ch][1], 0)
-            nbr2[offs[ch]:offs[ch + 1]] = src_j[at:at + found[ch]]
-            code2[offs[ch]:offs[ch + 1]] = src_c[at:at + found[ch]]
+            w = offs[ch]
+            for src_j, src_c, at, k in segs[ch]:
+                nbr2[w:w + k] = src_j[at:at + k]
+                code2[w:w + k] = src_c[at:at + k]
+                w += k
         run_chunks(move, lambda ch: (ch,), nchunk, nth)
         nbr, code = nbr2, code2
     else:

@@ -217,6 +217,45 @@ def test_large_liquid_against_ase_and_threads():
     del pc
 
 
+@pytest.mark.parametrize("guess", [None, 0.01, 1e3])
+def test_threaded_build_and_short_guess_give_one_list(guess, monkeypatch):
+    """Above the threading threshold (grid build, block gather, scan, full
+    list on threads): the list is bitwise the one of a serial run, also when
+    the room guess is short (chunks scan on into new room) or long."""
+    import numba
+
+    from ase_mlg import parallel
+    from ase_mlg.query import CUT_SCALAR, half_list
+    rng = np.random.default_rng(5)
+    n = 6000
+    L = (n / 0.02) ** (1 / 3)
+    atoms = ase.Atoms(f"Ar{n}", positions=rng.random((n, 3)) * L,
+                      cell=[L, L * 1.1, L * 0.9], pbc=True)
+    monkeypatch.setitem(parallel.THRESHOLDS, "atoms", 1000)
+    old = numba.get_num_threads()
+    try:
+        runs = []
+        for th in (1, old, 1):
+            numba.set_num_threads(th)
+            grid = ase_mlg.MLG.from_atoms(atoms)
+            index = BlockIndex(grid, 2)
+            pl = half_list(index, np.full(n, 7.0), CUT_SCALAR, 7.0,
+                           pairs_per_atom=guess)
+            full = pl.arrays(grid.positions, index.cell, False, "ijdDS")
+            runs.append((grid.sites.copy(), pl.rowptr, pl.nbr, pl.code,
+                         *full.values()))
+    finally:
+        numba.set_num_threads(old)
+    ref = nl.neighbor_list("ijdDS", atoms, 7.0)
+    for run in runs:
+        for x, y in zip(run, runs[0]):
+            assert np.array_equal(x, y)
+        for x, y in zip(run[4:], ref):
+            assert np.array_equal(x, y)
+    a = ase_nl.neighbor_list("ij", atoms, 7.0)
+    assert len(a[0]) == len(ref[0]) and np.array_equal(np.sort(a[0]), ref[0])
+
+
 def test_grid_after_many_updates_periodic():
     """The query on a grid maintained by swap sweeps over a random walk, with
     atoms crossing periodic faces (stored coordinates beyond the faces,
