@@ -17,6 +17,9 @@ range[1], box=ts.dimensions)`` returns.  Its conventions, all matched:
   listed twice in a group counts twice.  Exclusions (``exclusion_block``,
   ``exclude_same``) remove pairs by their positions in g1/g2 or by residue/
   segment/chain, self pairs included, exactly as InterRDF masks them.
+  Like InterRDF the classes count self pairs silently (a drop-in that
+  warned would break code that runs with warnings as errors);
+  ``ase-mlg rdf`` says so in one line and names ``--exclude-self``.
 * *One distance per pair: MDAnalysis's minimum image.*  Beyond half the box
   InterRDF does **not** count the further images of a pair (it would need a
   list of all images); the grid finds every image, and the duplicates are

@@ -130,9 +130,12 @@ def run(args, out=None):
     """Run ``ase-mlg rdf`` for parsed ``args`` (see :func:`add_parser`).
 
     Writes the table (columns r [Å], g(r), count) to ``--output`` or
-    ``out`` (default stdout), and a plot when ``--plot`` is given.  Bad
-    input raises ``ValueError``/``OSError`` with a one-line message naming
-    the argument.  Returns the finished :class:`RDF`.
+    ``out`` (default stdout), and a plot when ``--plot`` is given.  On
+    stderr, one line per file written, and one note when bin 0 counted
+    self pairs (InterRDF's default: each atom in both groups paired with
+    itself at d = 0) saying how to drop them.  Bad input raises
+    ``ValueError``/``OSError`` with a one-line message naming the
+    argument.  Returns the finished :class:`RDF`.
     """
     out = sys.stdout if out is None else out
     check_rmax(args.rmax, "--rmax")
@@ -201,6 +204,9 @@ def run(args, out=None):
         if str(exc).startswith("norm:"):
             raise ValueError(f"--norm: {one_line(exc)[6:]}") from None
         raise
+    note = _self_pair_note(args, g1, g2, block)
+    if note:
+        print(note, file=sys.stderr)
     table = np.column_stack([r.results.bins, r.results.rdf, r.results.count])
     header = (f"ase-mlg rdf: {' '.join(args.files)}, {r.n_frames} frames, "
               f"{len(g1)} x {len(g2)} atoms, norm={args.norm}\n"
@@ -209,9 +215,30 @@ def run(args, out=None):
         np.savetxt(out, table, fmt=("%.6f", "%.10g", "%.0f"), header=header)
     else:
         np.savetxt(args.output, table, fmt=("%.6f", "%.10g", "%.0f"), header=header)
+        print(f"ase-mlg rdf: wrote {args.output} ({len(table)} rows: r/Å, g(r), "
+              "count)", file=sys.stderr)
     if args.plot is not None:
         _plot(r, args.plot, f"{args.select} / {args.select2 or args.select}")
+        print(f"ase-mlg rdf: wrote the plot {args.plot}", file=sys.stderr)
     return r
+
+
+def _self_pair_note(args, g1, g2, block):
+    """One line when bin 0 holds self pairs (an atom of both groups with
+    itself, d = 0: InterRDF counts them unless excluded), else None.  For
+    updating selections the atoms of both groups are counted at the frame
+    the universe stands on."""
+    if block is not None or args.exclude_same is not None or args.rmin > 0.0:
+        return None
+    both = np.intersect1d(g1.ix, g2.ix)
+    if len(both) == 0:
+        return None
+    where = "a frame" if not args.updating else "in one frame (the selections update)"
+    fix = ("add --exclude-self to drop them" if args.select2 in (None, args.select)
+           else "--exclude-self needs one group; or choose disjoint selections")
+    return (f"ase-mlg rdf: note: bin 0 counts {len(both)} self pairs {where} "
+            f"(each atom in both groups with itself, d = 0), as MDAnalysis "
+            f"InterRDF does by default; {fix}")
 
 
 def _plot(r, path, label):
