@@ -9,6 +9,18 @@ the call), and the time to *update* a list after one MD-like step
     python validation/bench_neighbor_list.py            # N = 1e3, 1e4, 1e5
     python validation/bench_neighbor_list.py --large    # ... and 1e6
     python validation/bench_neighbor_list.py --quick    # LJ liquid only
+    python validation/bench_neighbor_list.py --scaling  # thread scaling only
+
+The thread-scaling table (``--scaling``, also part of a full run) times
+``neighbor_list("ijd", atoms, 8.5)`` on 97,556 atoms of argon (fcc a = 5.26
+Å rattled by 0.25 Å, indices shuffled; issue 17) against vesin's full list
+at equal threads.  Every figure comes from several fresh processes (one
+tool and one thread count each, ``NUMBA_NUM_THREADS`` set before numba
+starts, launched interleaved), each reporting from inside: numba's
+threading layer after a parallel kernel ran, its thread count, the distinct
+thread ids that kernel ran on, and ase-mlg's thread count for the list.
+Median over processes of each process's median call; spread = p90 / p10
+over all calls of all processes.
 
 All lists are full lists ('ijd', each pair as i-j and j-i).  ase_mlg's list
 is sorted by i (ASE semantics); vesin is timed both unsorted (its default)
@@ -241,8 +253,9 @@ def bench(sizes, scenes, threads_list, repeats_for, out):
     warm = time.perf_counter() - t
     out(f"ase_mlg first call (JIT compile or cache load): {jit:.2f} s "
         f"(second call {warm * 1e3:.1f} ms) -- excluded from the table")
-    out(f"numba threading layer: {numba.threading_layer()}, cores: "
-        f"{os.cpu_count()}")
+    layer, nthreads, ids = _probe_layer()
+    out(f"numba threading layer: {layer} ({nthreads} threads, a parallel kernel "
+        f"ran on {ids}), cores: {os.cpu_count()}")
     ase_time = {}
     for name in scenes:
         for n in (sizes if name != "small_cell" else [32]):
@@ -360,15 +373,140 @@ def bench_update(n, threads, out, steps=5, disp=0.03):
         f"same pairs: {ok}")
 
 
+
+# --------------------------------------------------------------------------
+# thread scaling, one process per figure
+# --------------------------------------------------------------------------
+
+def argon_scene(seed=0):
+    """97,556 atoms of argon: fcc a = 5.26 Å (29^3 cubic cells) rattled by
+    0.25 Å, atom indices shuffled (issue 17); cutoff 8.5 Å."""
+    from ase.build import bulk
+    rng = np.random.default_rng(seed)
+    atoms = bulk("Ar", "fcc", a=5.26, cubic=True) * (29, 29, 29)
+    atoms.rattle(0.25, rng=rng)
+    return atoms[rng.permutation(len(atoms))], 8.5
+
+
+def _probe_layer():
+    """numba's threading layer and the distinct thread ids of a prange
+    kernel run in this process (the layer loads at the first one)."""
+    import numba
+
+    @numba.njit(parallel=True)
+    def ids(out):
+        for c in numba.prange(out.shape[0]):
+            out[c] = numba.get_thread_id()
+            x = 0.0
+            for k in range(200000):  # long enough for every thread to take some
+                x += k * 1e-9
+            out[c] += 0 * int(x)
+    out = np.zeros(64, np.int64)
+    ids(out)
+    return numba.threading_layer(), numba.get_num_threads(), len(set(out.tolist()))
+
+
+def scaling_child(tool, threads, calls):
+    """One measuring process: report (JSON, last line) its layer, threads
+    and the time of each call after two warm-up calls."""
+    atoms, cutoff = argon_scene()
+    info = {"tool": tool, "threads": threads, "pid": os.getpid()}
+    if tool == "ase_mlg":
+        import ase_mlg
+        from ase_mlg.parallel import threads_for
+        info["ase_mlg"] = ase_mlg.__file__
+        info["list_threads"] = threads_for("atoms", len(atoms))
+    info["layer"], info["numba_threads"], info["thread_ids"] = _probe_layer()
+    ts = []
+    for k in range(calls + 2):
+        t = time.perf_counter()
+        out = run_tool(tool, atoms, cutoff, threads)
+        if k >= 2:
+            ts.append(time.perf_counter() - t)
+    info.update(times=ts, pairs=len(out[0]), n=len(atoms))
+    print(json.dumps(info))
+
+
+def _scaling_run(tool, threads, calls):
+    env = dict(os.environ)
+    env["NUMBA_NUM_THREADS"] = str(threads)
+    env["OMP_NUM_THREADS"] = str(threads)
+    r = subprocess.run([sys.executable, __file__, "--scaling-child", tool,
+                        str(threads), str(calls)], capture_output=True,
+                       text=True, env=env, timeout=900)
+    try:
+        return json.loads(r.stdout.strip().splitlines()[-1])
+    except (IndexError, ValueError):
+        return {"tool": tool, "threads": threads, "error": r.stderr[-400:]}
+
+
+def bench_scaling(threads_list, procs, calls, out):
+    """The thread-scaling table (see the module doc)."""
+    runs = {}
+    for _ in range(procs):  # interleaved: every figure sees the same load
+        for th in threads_list:
+            for tool in ("ase_mlg", "vesin"):
+                runs.setdefault((tool, th), []).append(_scaling_run(tool, th, calls))
+    out(f"thread scaling: neighbor_list('ijd', argon, 8.5) vs vesin (full list); "
+        f"{procs} processes x {calls} calls per figure, ms; cores: {os.cpu_count()}")
+    out(f"{'tool':8s} {'thr':>3s} {'layer':>9s} {'ids':>3s} {'list thr':>8s} | "
+        f"{'median':>8s} {'p10':>8s} {'p90':>8s} {'spread':>6s} | per process")
+    med = {}
+    for (tool, th), rs in runs.items():
+        bad = [r for r in rs if "error" in r]
+        good = [r for r in rs if "error" not in r]
+        for r in bad:
+            out(f"  {tool} {th} threads failed: {r['error']}")
+        if not good:
+            continue
+        allt = np.concatenate([r["times"] for r in good]) * 1e3
+        per = [float(np.median(r["times"]) * 1e3) for r in good]
+        med[tool, th] = float(np.median(per))
+        layers = ",".join(sorted({str(r["layer"]) for r in good}))
+        ids = ",".join(sorted({str(r["thread_ids"]) for r in good}))
+        lth = ",".join(sorted({str(r.get("list_threads", "-")) for r in good}))
+        p10, p90 = np.percentile(allt, [10, 90])
+        out(f"{tool:8s} {th:3d} {layers:>9s} {ids:>3s} {lth:>8s} | "
+            f"{med[tool, th]:8.1f} {p10:8.1f} {p90:8.1f} {p90 / p10:6.2f} | "
+            + " ".join(f"{x:.1f}" for x in per))
+        if tool == "ase_mlg":
+            pairs, n = good[0]["pairs"], good[0]["n"]
+    if ("ase_mlg", threads_list[0]) in med:
+        src = runs["ase_mlg", threads_list[0]][0].get("ase_mlg")
+        out(f"N = {n}, pairs = {pairs}; ase_mlg from {src}")
+    for th in threads_list:
+        if ("ase_mlg", th) in med and ("vesin", th) in med:
+            out(f"  {th} thread(s): ase_mlg / vesin = "
+                f"{med['ase_mlg', th] / med['vesin', th]:.2f}")
+    base = threads_list[0]
+    for th in threads_list[1:]:
+        for tool in ("ase_mlg", "vesin"):
+            if (tool, base) in med and (tool, th) in med:
+                out(f"  {tool} {base} -> {th} threads: "
+                    f"{med[tool, base] / med[tool, th]:.2f}x")
+    return runs
+
+
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--large", action="store_true", help="also N = 1e6")
     p.add_argument("--quick", action="store_true", help="LJ liquid only")
+    p.add_argument("--scaling", action="store_true",
+                   help="only the thread-scaling table (one process per figure)")
+    p.add_argument("--procs", type=int, default=3,
+                   help="processes per figure of the scaling table")
+    p.add_argument("--calls", type=int, default=7,
+                   help="timed calls per process of the scaling table")
     p.add_argument("--memory-child", nargs=4, help=argparse.SUPPRESS)
+    p.add_argument("--scaling-child", nargs=3, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.memory_child:
         tool, name, n, threads = args.memory_child
         memory_child(tool, name, int(n), int(threads))
+        return
+    if args.scaling_child:
+        tool, threads, calls = args.scaling_child
+        scaling_child(tool, int(threads), int(calls))
         return
     sizes = [1000, 10000, 100000] + ([1000000] if args.large else [])
     scenes = ["lj_liquid"] if args.quick else SCENES
@@ -378,6 +516,10 @@ def main(argv=None):
     def out(s):
         print(s, flush=True)
 
+    bench_scaling(threads_list, args.procs, args.calls, out)
+    if args.scaling:
+        return
+    out("")
     out("times in ms (s where marked), medians; ratios = ase_mlg time / tool "
         "time (< 1: ase_mlg faster)")
     out(HEADER)
