@@ -47,43 +47,55 @@ from .tracker import GridTracker
 __all__ = ["MLGCalculator"]
 
 
-def _max_deviation(positions, ref, M, worst):
-    """Largest ``|positions - ref @ M|`` (Å) over each of ``len(worst)``
-    chunks of atoms, into ``worst``: how far atoms have moved beyond the
-    affine map ``M`` of the cell (the identity in NVE); NaN if any is NaN."""
+def _gather_check(positions, order, images, cell, ref, M, X, worst):
+    """One pass per call over the atoms in row order: gather the positions
+    the kernel reads (``X[t] = x[order[t]] + images[t] @ cell``, as
+    :meth:`ase_mlg.pairlist.PairList.positions`) and measure how far each
+    atom moved beyond the affine map ``M`` of the cell since the list was
+    built (``ref``: positions then, in row order; ``M`` the identity in
+    NVE).  ``worst`` gets the largest displacement of each of its chunks of
+    rows (Å); NaN if any is NaN."""
     n = positions.shape[0]
     nchunk = worst.shape[0]
     for ch in prange(nchunk):
         w = 0.0
-        for a in range(ch * n // nchunk, (ch + 1) * n // nchunk):
+        for t in range(ch * n // nchunk, (ch + 1) * n // nchunk):
+            a = order[t]
+            m0 = images[t, 0]
+            m1 = images[t, 1]
+            m2 = images[t, 2]
             s = 0.0
             for c in range(3):
-                x = positions[a, c] - (ref[a, 0] * M[0, c] + ref[a, 1] * M[1, c]
-                                       + ref[a, 2] * M[2, c])
-                s += x * x
+                x = positions[a, c]
+                X[t, c] = x + (m0 * cell[0, c] + m1 * cell[1, c] + m2 * cell[2, c])
+                d = x - (ref[t, 0] * M[0, c] + ref[t, 1] * M[1, c] + ref[t, 2] * M[2, c])
+                s += d * d
             if s > w:
                 w = s
             elif not s == s:  # NaN: the list is never valid
                 w = np.nan
-                break
         worst[ch] = np.sqrt(w)
 
 
 # a max is the same whatever the chunking: serial or threaded by size
-_max_deviation_serial, _max_deviation_threaded = serial_and_parallel(_max_deviation)
+_gather_check_serial, _gather_check_threaded = serial_and_parallel(_gather_check)
 
 
-def max_deviation(positions, ref, M):
-    """Largest displacement beyond the cell map ``M`` since ``ref``, Å."""
+def gather_check(positions, order, images, cell, ref, M):
+    """``(X, umax)``: positions in row order and the largest displacement
+    beyond the cell map ``M`` since ``ref`` (Å, NaN if any position is)."""
     n = len(positions)
+    X = np.empty((n, 3))
+    cell = np.ascontiguousarray(cell, dtype=np.float64)
     if use_threads("atoms", n):
         worst = np.empty(4 * threads_for("atoms", n))
         with dynamic_schedule():
-            _max_deviation_threaded(positions, ref, M, worst)
+            _gather_check_threaded(positions, order, images, cell, ref, M, X, worst)
     else:
         worst = np.empty(1)
-        _max_deviation_serial(positions, ref, M, worst)
-    return np.nan if np.isnan(worst).any() else float(worst.max(initial=0.0))
+        _gather_check_serial(positions, order, images, cell, ref, M, X, worst)
+    umax = np.nan if np.isnan(worst).any() else float(worst.max(initial=0.0))
+    return X, umax
 
 
 _EYE = np.eye(3)
@@ -180,11 +192,11 @@ class MLGCalculator(Calculator):
                       "sweeps": 0, "swaps": 0, "grid_rebuilds": 0,
                       "pairs": 0, "threads_used": 0}
         #: Cumulative wall time (s) of each phase of :meth:`calculate`:
-        #: ``check`` (is the list still valid), ``gather`` (positions to
-        #: row order), ``list_build`` (rebuilds, the grid's part included),
+        #: ``check`` (positions to row order and the list-validity test, one
+        #: pass), ``list_build`` (rebuilds, the grid's part included),
         #: ``grid`` (grid updates and sweeps), ``kernel`` (the pair sum),
         #: and ``calls``.
-        self.timings = dict.fromkeys(("check", "gather", "list_build", "grid",
+        self.timings = dict.fromkeys(("check", "list_build", "grid",
                                       "kernel", "calls"), 0.0)
 
     @property
@@ -233,51 +245,55 @@ class MLGCalculator(Calculator):
         self._types = np.ascontiguousarray(self.potential.prepare(atoms.numbers)[0][pl.order])
         self._numbers = atoms.numbers.copy()
         self._pbc = atoms.pbc.copy()
-        self._ref = positions.copy()
+        self._ref = np.ascontiguousarray(positions[pl.order])  # row order
         self._ref_cell = atoms.cell.array.copy()
         self._rlist = rlist
         self._list = pl
         self.stats["list_builds"] += 1
         return X, svec
 
-    def _list_valid(self, positions, cell):
-        """Does the list still hold every pair within the cutoff?
+    def _valid_positions(self, positions, cell):
+        """Positions in row order if the list still holds every pair within
+        the cutoff, else None.
 
         A pair left out was at ``d0 >= rlist`` when the list was built.
         With ``M`` the affine map of the cell since then and ``u`` each
         atom's displacement beyond it, its distance now is at least
         ``smin(M) d0 - 2 max|u|`` (``smin`` the smallest singular value of
-        M), so the list is valid while ``smin(M) rlist - 2 max|u| > rc``.
-        At fixed cell that is the usual Verlet test ``max|u| < skin / 2``;
-        under NPT the skin covers displacement and strain together, the
-        test LAMMPS and GROMACS apply.
+        M: the triangle inequality), so the list is valid while
+        ``smin(M) rlist - 2 max|u| > rc``.  At fixed cell that is the usual
+        Verlet test ``max|u| < skin / 2``; under NPT the skin covers
+        displacement and strain together.  (LAMMPS's ``check_distance``
+        bounds the strain by the box corners' displacement instead.)
         """
         if self._list is None:
-            return False
+            return None
         ref_cell = self._ref_cell
         if np.array_equal(cell, ref_cell):
             M, smin = _EYE, 1.0
         elif self.auto is not None:
-            return False  # template="auto" re-checks its width when the cell changes
+            return None  # template="auto" re-checks its width when the cell changes
         elif abs(np.linalg.det(ref_cell)) < 1e-12 * max(np.abs(ref_cell).max(), 1.0) ** 3:
-            return False
+            return None
         else:
             M = np.linalg.solve(ref_cell, cell)
             smin = float(np.linalg.svd(M, compute_uv=False).min())
-        umax = max_deviation(positions, self._ref, np.ascontiguousarray(M))
+        pl = self._list
+        X, umax = gather_check(positions, pl.order, pl.images, cell, self._ref,
+                               np.ascontiguousarray(M))
         self._check_displacement(positions, M, umax, cell)
         if self.skin == 0.0:
-            return False
+            return None
         if M is _EYE:
-            return umax < 0.5 * self.skin
-        return smin * self._rlist - 2.0 * umax > self.potential.cutoff
+            return X if umax < 0.5 * self.skin else None
+        return X if smin * self._rlist - 2.0 * umax > self.potential.cutoff else None
 
     def _check_displacement(self, positions, M, umax, cell):
         limit = ABSURD_LISTS * self._rlist + 10.0 * float(np.linalg.norm(cell, axis=1).sum())
         if not umax > limit:  # NaN too: the grid update names those atoms
             return
-        u = np.linalg.norm(positions - self._ref @ M, axis=1)
-        bad = np.flatnonzero(u > limit)
+        u = np.linalg.norm(positions[self._list.order] - self._ref @ M, axis=1)
+        bad = np.sort(self._list.order[u > limit])
         raise ValueError(
             f"positions: atom(s) {bad[:10].tolist()}{' ...' if len(bad) > 10 else ''} "
             f"moved up to {u.max():.3g} Å since the pair list was built (limit "
@@ -334,14 +350,12 @@ class MLGCalculator(Calculator):
             self._list = self._chunks = None
         # positions in grid order: neighbours are close in memory whatever
         # the atoms' index order
-        valid = self._list_valid(positions, cell)
+        X = self._valid_positions(positions, cell)
         t1 = time.perf_counter()
         timings["check"] += t1 - t0
-        if valid:
-            X = self._list.positions(positions, cell)
+        if X is not None:
             svec = shift_vectors(self._list.shifts, cell)
             t2 = time.perf_counter()
-            timings["gather"] += t2 - t1
         else:
             X, svec = self._build_list(atoms, positions)
             t2 = time.perf_counter()
