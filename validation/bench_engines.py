@@ -155,7 +155,9 @@ def step_parts(before, after, steps, step_ms):
         for k in PHASES:
             if k in t0 and k in t1:
                 parts[k] = 1e3 * (t1[k] - t0[k]) / steps
-    inside = [parts.get(k) for k in ("kernel", "list_build", "gather", "check")]
+    # the phases inside calculate (ase-mlg merged "gather" into "check")
+    inside = [parts.get(k) for k in ("kernel", "list_build", "gather", "check")
+              if k in parts or t1 is None or k != "gather"]
     if c1 > c0:
         parts["calculator"] = 1e3 * (s1 - s0) / steps
     elif None not in inside:  # a loop that bypasses calc.calculate
