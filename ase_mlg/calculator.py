@@ -328,7 +328,13 @@ class MLGCalculator(Calculator):
 
     def calculate(self, atoms=None, properties=("energy",),
                   system_changes=all_changes):
-        Calculator.calculate(self, atoms, properties, system_changes)
+        # ASE's Calculator.calculate copies the atoms again right after
+        # get_property copied them (a full copy, momenta and all: 0.5 ms a
+        # call at 10^5 atoms); copy only when they differ from the stored
+        # ones in what a pair potential reads.  No files are written, so no
+        # directory is made.
+        if atoms is not None and (self.atoms is None or self.check_state(atoms)):
+            self.atoms = atoms.copy()
         atoms = self.atoms
         positions = atoms.positions
         if not (positions.dtype == np.float64 and positions.ndim == 2
