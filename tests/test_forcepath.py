@@ -14,7 +14,7 @@ from ase.build import bulk
 from ase.calculators.lj import LennardJones as AseLJ
 from ase.io import read, write
 from ase.md.nose_hoover_chain import MTKNPT
-from ase.md.velocitydistribution import MaxwellBoltzmannDistribution
+from ase.md.velocitydistribution import thermalize_momenta
 from ase.md.verlet import VelocityVerlet
 
 from ase_mlg import MLGCalculator
@@ -145,7 +145,7 @@ def test_thread_counts_agree_in_subprocesses():
 
 def test_npt_keeps_grid_and_list_and_matches_ase():
     atoms = argon(5, rattle=0.2, seed=1)
-    MaxwellBoltzmannDistribution(atoms, temperature_K=90, rng=np.random.default_rng(2))
+    thermalize_momenta(atoms, temperature_K=90, rng=np.random.default_rng(2))
     calc = MLGCalculator(LennardJones(**AR))
     atoms.calc = calc
     dyn = MTKNPT(atoms, 5 * units.fs, temperature_K=90, pressure_au=1 * units.bar,
