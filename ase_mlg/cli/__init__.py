@@ -30,12 +30,31 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
+# bare `ase-mlg` is a newcomer's first screen: what to type, and where the
+# Python API is
+_EPILOG = """\
+examples:
+  ase-mlg demo                        the package end to end (about a minute)
+  ase-mlg rdf topol.tpr traj.xtc --select "name OW" --exclude-self --plot ow.png
+  ase-mlg tradeoff --scene liquid     Boris's template against exact mode
+  ase-mlg info                        threading layer and versions
+
+in Python (the package is a library first):
+  import ase_mlg
+  from ase_mlg.potentials import LennardJones
+  atoms.calc = ase_mlg.MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5))
+  i, j, d = ase_mlg.neighbor_list("ijd", atoms, 5.0)   # ase.neighborlist's semantics
+  see README.md (docs/design.md for the algorithms) and help(ase_mlg.MLGCalculator)
+"""
+
+
 def _parser():
     from .. import __version__
     parser = _Parser(
         prog="ase-mlg",
         description="Boris's Monotonic Logical Grid for molecular dynamics in "
-                    "ASE. Run 'ase-mlg COMMAND -h' for a command's options.")
+                    "ASE. Run 'ase-mlg COMMAND -h' for a command's options.",
+        epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version",
                         version=f"ase-mlg {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND",

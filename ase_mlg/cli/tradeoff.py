@@ -143,9 +143,36 @@ def _parse_widths_text(text):
                          f"got {text!r}") from None
 
 
+#: What each column of the table means (printed under it).
+KEY = {
+    "W": "template width (W x W x W sites), or exact mode",
+    "pairs": "interacting pairs the mode finds (d < cutoff)",
+    "missed": "fraction of the exact query's interacting pairs the mode misses",
+    "closest miss Å": "distance of the closest missed pair (Boris's close uncounter)",
+    "dE eV/atom": "energy error per atom against exact mode",
+    "F rms eV/Å": "RMS over atoms of |F - F_exact|",
+    "F max eV/Å": "largest |F - F_exact|",
+    "search ms": "pair search alone (template scan or exact query)",
+    "call ms": "one force call that builds its list (grid update, search, pair sum; skin 0)",
+    "call/exact": "call ms / exact mode's call ms",
+    "drift eV/atom/ps": "NVE drift: least-squares slope of the total energy per atom",
+    "max|dE| eV/atom": "largest deviation of the total energy per atom in the run",
+    "step ms": "median MD step with the skin list",
+    "missed@end": "missed fraction on the grid the MD run carried to its end",
+}
+
+
+def key_lines(result):
+    """The key to ``result.table()``'s columns, one line each."""
+    heads = [h for h, *_ in result.columns()]
+    width = max(len(h) for h in heads)
+    return ["columns:"] + [f"  {h.ljust(width)}  {KEY[h]}" for h in heads]
+
+
 def run(args, out=None):
-    """Run ``ase-mlg tradeoff`` for parsed ``args``; print the table (or
-    JSON) to ``out`` (default stdout) and write the plot if asked.
+    """Run ``ase-mlg tradeoff`` for parsed ``args``; print the table with
+    the key to its columns (or JSON) to ``out`` (default stdout) and write
+    the plot if asked.
 
     Returns
     -------
@@ -184,7 +211,11 @@ def run(args, out=None):
     result = measure(atoms, potential, widths=widths, md_steps=md,
                      timestep_fs=timestep, temperature_K=temperature, skin=skin,
                      repeats=repeats, seed=seed, label=label, clock=args.clock)
-    print(result.to_json(indent=1) if args.json else result.table(), file=out)
+    if args.json:
+        print(result.to_json(indent=1), file=out)
+    else:
+        print(result.table(), file=out)
+        print("\n".join(key_lines(result)), file=out)
     if args.plot is not None:
         os.makedirs(args.plot, exist_ok=True)
         path = plot_tradeoff(result, os.path.join(args.plot, "tradeoff.png"))
