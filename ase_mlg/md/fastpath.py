@@ -170,3 +170,25 @@ def forces_now(atoms):
             # later check see all changes (a force call per check)
             calc.atoms = atoms.copy()
     return as_float_array(calc.results["forces"], len(atoms))
+
+
+class CompiledRefresh:
+    """Mixin of the compiled integrators: ASE's ``_refresh_properties``
+    without its extra force call where the step left fresh results.
+
+    ASE calls ``atoms.get_forces()`` there only to have the results cached
+    for loggers and observers.  Right after a compiled step (irun calls
+    this next, ``nsteps > 0``) the calculator holds the results of the
+    current positions already (the step's second force call); otherwise,
+    with MLGCalculator, caching needs no copy."""
+
+    _fresh = False
+
+    def _refresh_properties(self):
+        if self._fresh and self.nsteps > 0:
+            self._fresh = False
+            return
+        if is_mlg(self.atoms) and compiled_reason(self.atoms) is None:
+            forces_now(self.atoms)
+        else:
+            super()._refresh_properties()

@@ -5,8 +5,8 @@ from ase.md.langevin import Langevin as _ASELangevin
 
 from .kernels import langevin_drift, langevin_kick, langevin_noise, no_fixed
 from .checks import check_dynamics_args, check_langevin_args
-from .fastpath import (as_float_array, compiled_reason, fixed_mask, forces_now,
-                       is_mlg, masses_now)
+from .fastpath import (CompiledRefresh, as_float_array, compiled_reason, fixed_mask, forces_now,
+                       masses_now)
 
 __all__ = ["Langevin"]
 
@@ -22,7 +22,7 @@ def _per_atom(c, n):
     return None
 
 
-class Langevin(_ASELangevin):
+class Langevin(CompiledRefresh, _ASELangevin):
     """Langevin dynamics (NVT), a drop-in for :class:`ase.md.langevin.Langevin`.
 
     ASE's algorithm (Vanden-Eijnden and Ciccotti 2006, Eq. 23) with ASE's
@@ -139,13 +139,3 @@ class Langevin(_ASELangevin):
         ro = f.view()
         ro.flags.writeable = False
         return ro
-
-    def _refresh_properties(self):
-        # see VelocityVerlet._refresh_properties
-        if self._fresh and self.nsteps > 0:
-            self._fresh = False
-            return
-        if is_mlg(self.atoms) and compiled_reason(self.atoms) is None:
-            forces_now(self.atoms)
-        else:
-            super()._refresh_properties()

@@ -4,8 +4,8 @@ from ase.md.verlet import VelocityVerlet as _ASEVelocityVerlet
 
 from .kernels import no_fixed, verlet_drift, verlet_drift_rattle, verlet_kick
 from .checks import check_dynamics_args
-from .fastpath import (as_float_array, compiled_reason, fixed_mask, forces_now,
-                       is_mlg, masses_now)
+from .fastpath import (CompiledRefresh, as_float_array, compiled_reason, fixed_mask, forces_now,
+                       masses_now)
 
 __all__ = ["VelocityVerlet"]
 
@@ -16,7 +16,7 @@ def _readonly(a):
     return v
 
 
-class VelocityVerlet(_ASEVelocityVerlet):
+class VelocityVerlet(CompiledRefresh, _ASEVelocityVerlet):
     """Velocity Verlet (NVE), a drop-in for :class:`ase.md.verlet.VelocityVerlet`.
 
     Same constructor, observers (``attach``), ``run`` / ``irun``,
@@ -90,18 +90,4 @@ class VelocityVerlet(_ASEVelocityVerlet):
         verlet_kick(p, f, dt, fixed)
         self._fresh = True
         return _readonly(f)
-
-    def _refresh_properties(self):
-        # ASE calls atoms.get_forces() here only to have the results cached
-        # for loggers and observers.  Right after a compiled step (irun calls
-        # this next, nsteps > 0) the calculator holds the results of the
-        # current positions already (its second force call); otherwise, with
-        # MLGCalculator, caching needs no copy
-        if self._fresh and self.nsteps > 0:
-            self._fresh = False
-            return
-        if is_mlg(self.atoms) and compiled_reason(self.atoms) is None:
-            forces_now(self.atoms)
-        else:
-            super()._refresh_properties()
 
