@@ -239,13 +239,17 @@ class MLGCalculator(Calculator):
             i, j, S, _ = template_pairs(self.grid, self.template, rlist)
             pl = pair_list(index, i, j, S)
         del old, index
-        X = pl.positions(positions, atoms.cell.array)
+        # the positions then, in row order (the validity test's reference),
+        # and the kernel's positions through the per-call kernel itself, so
+        # that it is compiled or loaded here, not in the first call after
+        ref = np.ascontiguousarray(positions[pl.order])
+        X, _ = gather_check(positions, pl.order, pl.images, atoms.cell.array, ref, _EYE)
         svec = shift_vectors(pl.shifts, atoms.cell.array)
         pl.partition(X, svec, rc)
         self._types = np.ascontiguousarray(self.potential.prepare(atoms.numbers)[0][pl.order])
         self._numbers = atoms.numbers.copy()
         self._pbc = atoms.pbc.copy()
-        self._ref = np.ascontiguousarray(positions[pl.order])  # row order
+        self._ref = ref
         self._ref_cell = atoms.cell.array.copy()
         self._rlist = rlist
         self._list = pl
