@@ -233,8 +233,9 @@ class MLGCalculator(Calculator):
         n = len(atoms)
         if self.template is None:
             hint = None if old is None or old.natoms != n else len(old) / max(n, 1)
+            # pairs within rc first in each row, straight from the scan
             pl = half_list(index, np.full(n, rlist), cut=rlist,
-                           pairs_per_atom=hint, reuse=old)
+                           pairs_per_atom=hint, reuse=old, split=rc)
         else:
             i, j, S, _ = template_pairs(self.grid, self.template, rlist)
             pl = pair_list(index, i, j, S)
@@ -245,7 +246,8 @@ class MLGCalculator(Calculator):
         ref = np.ascontiguousarray(positions[pl.order])
         X, _ = gather_check(positions, pl.order, pl.images, atoms.cell.array, ref, _EYE)
         svec = shift_vectors(pl.shifts, atoms.cell.array)
-        pl.partition(X, svec, rc)
+        if self.template is not None:
+            pl.partition(X, svec, rc)  # the exact scan ordered its rows itself
         self._types = np.ascontiguousarray(self.potential.prepare(atoms.numbers)[0][pl.order])
         self._numbers = atoms.numbers.copy()
         self._pbc = atoms.pbc.copy()

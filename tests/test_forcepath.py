@@ -230,3 +230,33 @@ def test_unrelated_configuration_after_reset():
         atoms.get_forces()
     calc.reset()
     assert_like_ase(atoms, calc)
+
+
+def test_exact_list_rows_hold_pairs_within_the_cutoff_first():
+    """The scan writes each row's pairs within rc first (the force loop's
+    cutoff branch is then predicted), and the list is still every pair
+    within rc + skin: the same set as a list built without the split."""
+    from ase_mlg.blocks import BlockIndex
+    from ase_mlg.pairsum import shift_vectors
+    from ase_mlg.query import half_list
+    atoms = argon(5, rattle=0.3)
+    calc = MLGCalculator(LennardJones(**AR))
+    atoms.calc = calc
+    atoms.get_forces()
+    pl = calc._list
+    X = pl.positions(atoms.positions, atoms.cell.array)
+    svec = shift_vectors(pl.shifts, atoms.cell.array)
+    t = np.repeat(np.arange(pl.natoms), np.diff(pl.rowptr))
+    d = np.linalg.norm(X[pl.nbr] - X[t] + svec[pl.code], axis=1)
+    inner = d <= AR["rc"] + 1e-9
+    outer = d > AR["rc"] - 1e-9
+    for r in range(pl.natoms):
+        a, b = pl.rowptr[r], pl.rowptr[r + 1]
+        k = int(inner[a:b].sum())
+        assert inner[a:a + k].all() and outer[a + k:b].all(), r
+    assert 0 < inner.sum() < len(inner)
+    plain = half_list(BlockIndex(calc.grid), np.full(pl.natoms, AR["rc"] + 1.0),
+                      cut=AR["rc"] + 1.0)
+    key = lambda p: np.sort(np.repeat(np.arange(p.natoms), np.diff(p.rowptr)) * 10**6
+                            + p.nbr.astype(np.int64) * 100 + p.code)
+    np.testing.assert_array_equal(key(pl), key(plain))
