@@ -38,7 +38,7 @@ from .geometry import as_positions
 from .template import template_pairs
 from .pairsum import shift_vectors
 from .potentials import PairPotential
-from .blocks import BlockIndex
+from .blocks import BlockIndex, block_for_radius
 from .parallel import dynamic_schedule, serial_and_parallel, threads_for, use_threads
 from .partition import row_chunks
 from .query import half_list, pair_list
@@ -229,7 +229,7 @@ class MLGCalculator(Calculator):
         rlist = rc + self.skin if self.skin > 0 else float(np.nextafter(rc, np.inf))
         if self.auto is not None:
             self.template = self.auto.choose(self.grid, self.potential, atoms.numbers)
-        index = BlockIndex(self.grid)
+        index = BlockIndex(self.grid, block_for_radius(self.grid, rlist))
         n = len(atoms)
         if self.template is None:
             hint = None if old is None or old.natoms != n else len(old) / max(n, 1)

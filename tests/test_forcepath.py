@@ -236,7 +236,7 @@ def test_exact_list_rows_hold_pairs_within_the_cutoff_first():
     """The scan writes each row's pairs within rc first (the force loop's
     cutoff branch is then predicted), and the list is still every pair
     within rc + skin: the same set as a list built without the split."""
-    from ase_mlg.blocks import BlockIndex
+    from ase_mlg.blocks import BlockIndex, block_for_radius
     from ase_mlg.pairsum import shift_vectors
     from ase_mlg.query import half_list
     atoms = argon(5, rattle=0.3)
@@ -255,8 +255,9 @@ def test_exact_list_rows_hold_pairs_within_the_cutoff_first():
         k = int(inner[a:b].sum())
         assert inner[a:a + k].all() and outer[a + k:b].all(), r
     assert 0 < inner.sum() < len(inner)
-    plain = half_list(BlockIndex(calc.grid), np.full(pl.natoms, AR["rc"] + 1.0),
-                      cut=AR["rc"] + 1.0)
+    rlist = AR["rc"] + 1.0
+    plain = half_list(BlockIndex(calc.grid, block_for_radius(calc.grid, rlist)),
+                      np.full(pl.natoms, rlist), cut=rlist)
     key = lambda p: np.sort(np.repeat(np.arange(p.natoms), np.diff(p.rowptr)) * 10**6
                             + p.nbr.astype(np.int64) * 100 + p.code)
     np.testing.assert_array_equal(key(pl), key(plain))
