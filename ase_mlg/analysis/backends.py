@@ -103,9 +103,11 @@ class DistributedBackend(BackendBase):
     pickled, and MDAnalysis reopens its files on the worker.  Start a
     cluster with ``dask scheduler`` (prints its address, e.g.
     ``tcp://10.0.0.1:8786``) and ``dask worker tcp://10.0.0.1:8786`` on each
-    machine; then ``Client("tcp://10.0.0.1:8786")``.  Worker threads are
-    fine with the TBB threading layer; under the workqueue fallback start
-    workers with ``--nthreads 1``.
+    machine; then ``Client("tcp://10.0.0.1:8786")``.  Workers may run
+    several threads: under the TBB layer kernels run concurrently, under the
+    workqueue fallback their launches are serialised.  Use worker processes
+    (``LocalCluster(processes=True)``, dask's default): the threads of an
+    in-process cluster share this process's trajectory readers.
 
     Parameters
     ----------
