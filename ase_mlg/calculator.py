@@ -12,19 +12,23 @@ list built with a Verlet ``skin``:
   ``d < cutoff + skin`` found in Boris's W x W x W half template
   (docs/design.md §7).  Fast and approximate: the pairs the template misses are the
   price, and :mod:`ase_mlg.tradeoff` measures it.
-* ``template="auto"``: W is the smallest width that meets ``tolerance``,
-  chosen and re-checked against the exact query by
+* ``template="auto"``: the fastest mode that meets ``tolerance``, exact mode
+  included, as timed and re-checked against the exact query by
   :class:`ase_mlg.autotemplate.AutoTemplate` (see there for what is guaranteed
   at the checks and what is not between them).
 
 When the list expires the grid is repaired by swap sweeps
-(``MLG.update``), not rebuilt; it is rebuilt only when the number of atoms,
-the cell or pbc change, or the sweep cap is hit.  Distance vectors are
+(``MLG.update``), not rebuilt; it follows a changing cell (NPT) by rescaling
+its stored coordinates, and is rebuilt only when the number of atoms or pbc
+change, the cell degenerates, or the sweep cap is hit.  The force kernel's
+unit of parallel work is :class:`ase_mlg.partition.RowChunks`, kept with the
+list.  Distance vectors are
 recomputed every call from the current positions and the list's cell shifts,
 ``D = positions[j] - positions[i] + S @ cell``, exactly as ASE does.
 
-Statistics (list builds, grid rebuilds, sweeps, swaps, pairs evaluated) are
-in ``calc.stats``.
+Statistics (list builds, grid rebuilds, sweeps, swaps, pairs evaluated, the
+numba threads that ran the last force kernel) are in ``calc.stats``, the
+time of each phase of a call in ``calc.timings``.
 """
 
 import time
