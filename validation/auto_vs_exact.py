@@ -25,22 +25,12 @@ from ase import units
 
 from ase_mlg import MLGCalculator
 from ase_mlg.autotemplate import AutoTemplate
-from ase_mlg.potentials import LennardJones, lennard_jones_mixture
 from ase_mlg.scenes import make_scene
 
-ARGON = dict(sigma=3.405, epsilon=0.0104, rc=8.5)
-CU_LJ = dict(sigma=2.3, epsilon=0.4, rc=5.0)
+from make_tradeoff import potential  # the trade-off report's potentials per scene
+
 KIND = {"liquid": "argon", "gas": "argon", "mixture": "mixture", "copper": "cu",
         "sheared": "cu", "slab": "cu", "nanoparticle": "cu", "small": "cu"}
-
-
-def potential(kind):
-    if kind == "argon":
-        return LennardJones(**ARGON, smooth=True)
-    if kind == "cu":
-        return LennardJones(**CU_LJ, smooth=True)
-    return lennard_jones_mixture(sigma={"Ar": 3.405, "Kr": 3.65},
-                                 epsilon={"Ar": 0.0104, "Kr": 0.0140}, rc=8.5)
 
 
 def modes():
