@@ -340,11 +340,20 @@ class MLGCalculator(Calculator):
                   system_changes=all_changes):
         # ASE's Calculator.calculate copies the atoms again right after
         # get_property copied them (a full copy, momenta and all: 0.5 ms a
-        # call at 10^5 atoms); copy only when they differ from the stored
-        # ones in what a pair potential reads.  No files are written, so no
+        # call at 10^5 atoms); the stored atoms are only brought up to date
+        # in what a pair potential reads.  No files are written, so no
         # directory is made.
-        if atoms is not None and (self.atoms is None or self.check_state(atoms)):
-            self.atoms = atoms.copy()
+        if atoms is not None:
+            old = self.atoms
+            changes = list(all_changes) if old is None else self.check_state(atoms)
+            if "numbers" in changes or "pbc" in changes:  # also: another length
+                self.atoms = atoms.copy()
+            elif changes:
+                # positions or cell moved (every MD step): update the stored
+                # state in place, one copy of the positions, not of the atoms
+                old.positions[:] = atoms.positions
+                if "cell" in changes:
+                    old.cell = atoms.cell.copy()
         atoms = self.atoms
         positions = atoms.positions
         if not (positions.dtype == np.float64 and positions.ndim == 2

@@ -161,7 +161,8 @@ def forces_now(atoms):
         return as_float_array(atoms.get_forces(md=True), len(atoms))
     changes = calc.check_state(atoms)
     if changes:
-        calc.atoms = None
+        # the stored atoms stay: calculate() updates their positions in
+        # place instead of copying the whole Atoms object every step
         calc.results = {}
     if "forces" not in calc.results:
         calc.calculate(atoms, ["forces"], changes)
