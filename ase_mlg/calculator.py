@@ -35,7 +35,6 @@ import time
 
 import numpy as np
 from ase.calculators.calculator import Calculator, all_changes
-from numba import prange
 
 from .autotemplate import AutoTemplate
 from .geometry import as_positions
@@ -43,63 +42,12 @@ from .template import template_pairs
 from .pairsum import shift_vectors
 from .potentials import PairPotential
 from .blocks import BlockIndex, block_for_radius
-from .parallel import dynamic_schedule, serial_and_parallel, threads_for, use_threads
+from .parallel import threads_for
 from .partition import row_chunks
 from .query import half_list, pair_list
 from .tracker import GridTracker
 
 __all__ = ["MLGCalculator"]
-
-
-def _gather_check(positions, order, images, cell, ref, M, X, worst):
-    """One pass per call over the atoms in row order: gather the positions
-    the kernel reads (``X[t] = x[order[t]] + images[t] @ cell``, as
-    :meth:`ase_mlg.pairlist.PairList.positions`) and measure how far each
-    atom moved beyond the affine map ``M`` of the cell since the list was
-    built (``ref``: positions then, in row order; ``M`` the identity in
-    NVE).  ``worst`` gets the largest displacement of each of its chunks of
-    rows (Å); NaN if any is NaN."""
-    n = positions.shape[0]
-    nchunk = worst.shape[0]
-    for ch in prange(nchunk):
-        w = 0.0
-        for t in range(ch * n // nchunk, (ch + 1) * n // nchunk):
-            a = order[t]
-            m0 = images[t, 0]
-            m1 = images[t, 1]
-            m2 = images[t, 2]
-            s = 0.0
-            for c in range(3):
-                x = positions[a, c]
-                X[t, c] = x + (m0 * cell[0, c] + m1 * cell[1, c] + m2 * cell[2, c])
-                d = x - (ref[t, 0] * M[0, c] + ref[t, 1] * M[1, c] + ref[t, 2] * M[2, c])
-                s += d * d
-            if s > w:
-                w = s
-            elif not s == s:  # NaN: the list is never valid
-                w = np.nan
-        worst[ch] = np.sqrt(w)
-
-
-# a max is the same whatever the chunking: serial or threaded by size
-_gather_check_serial, _gather_check_threaded = serial_and_parallel(_gather_check)
-
-
-def gather_check(positions, order, images, cell, ref, M):
-    """``(X, umax)``: positions in row order and the largest displacement
-    beyond the cell map ``M`` since ``ref`` (Å, NaN if any position is)."""
-    n = len(positions)
-    X = np.empty((n, 3))
-    cell = np.ascontiguousarray(cell, dtype=np.float64)
-    if use_threads("atoms", n):
-        worst = np.empty(4 * threads_for("atoms", n))
-        with dynamic_schedule():
-            _gather_check_threaded(positions, order, images, cell, ref, M, X, worst)
-    else:
-        worst = np.empty(1)
-        _gather_check_serial(positions, order, images, cell, ref, M, X, worst)
-    umax = np.nan if np.isnan(worst).any() else float(worst.max(initial=0.0))
-    return X, umax
 
 
 _EYE = np.eye(3)
@@ -245,10 +193,10 @@ class MLGCalculator(Calculator):
             pl = pair_list(index, i, j, S)
         del old, index
         # the positions then, in row order (the validity test's reference),
-        # and the kernel's positions through the per-call kernel itself, so
-        # that it is compiled or loaded here, not in the first call after
+        # and the kernel's positions through the per-call gather, so that it
+        # is compiled or loaded here, not in the first call after
         ref = np.ascontiguousarray(positions[pl.order])
-        X, _ = gather_check(positions, pl.order, pl.images, atoms.cell.array, ref, _EYE)
+        X = pl.positions(positions, atoms.cell.array)
         svec = shift_vectors(pl.shifts, atoms.cell.array)
         if self.template is not None:
             pl.partition(X, svec, rc)  # the exact scan ordered its rows itself
@@ -289,8 +237,7 @@ class MLGCalculator(Calculator):
             M = np.linalg.solve(ref_cell, cell)
             smin = float(np.linalg.svd(M, compute_uv=False).min())
         pl = self._list
-        X, umax = gather_check(positions, pl.order, pl.images, cell, self._ref,
-                               np.ascontiguousarray(M))
+        X, umax = pl.gather_check(positions, cell, self._ref, np.ascontiguousarray(M))
         self._check_displacement(positions, M, umax, cell)
         if self.skin == 0.0:
             return None

@@ -13,7 +13,8 @@ writes ``ase.neighborlist``'s arrays (docs/design.md §6).
 import numpy as np
 from numba import njit, prange
 
-from .parallel import run_chunks, serial_and_parallel, threads_for, use_threads
+from .parallel import (dynamic_schedule, run_chunks, serial_and_parallel, threads_for,
+                       use_threads)
 
 __all__ = ["PairList", "pair_vector", "ase_vector"]
 
@@ -76,11 +77,28 @@ class PairList:
     def positions(self, positions, cell):
         """Positions in row order, each in the image the grid keeps it in
         (``x[order] + images @ cell``): the ``X`` of the pair kernel, Å."""
-        X = np.empty((len(self.order), 3))
+        return self.gather_check(positions, cell)[0]
+
+    def gather_check(self, positions, cell, ref=None, M=None):
+        """``(X, umax)``: :meth:`positions`, and in the same pass the
+        largest displacement beyond the affine cell map ``M`` since ``ref``
+        (positions in row order when the list was built), Å; NaN if any
+        position is NaN; 0 without ``ref``.  One read of the positions per
+        MD call for the gather and the list-validity test."""
         n = len(self.order)
-        gather = _gather_threaded if use_threads("atoms", n) else _gather_serial
-        gather(positions, self.order, self.images, np.ascontiguousarray(cell, dtype=np.float64), X)
-        return X
+        X = np.empty((n, 3))
+        cell = np.ascontiguousarray(cell, dtype=np.float64)
+        if ref is None:
+            ref, M = _NO_REF, _EYE
+        if use_threads("atoms", n):
+            worst = np.empty(4 * threads_for("atoms", n))
+            with dynamic_schedule():
+                _gather_threaded(positions, self.order, self.images, cell, ref, M, X, worst)
+        else:
+            worst = np.empty(1)
+            _gather_serial(positions, self.order, self.images, cell, ref, M, X, worst)
+        umax = np.nan if np.isnan(worst).any() else float(worst.max(initial=0.0))
+        return X, umax
 
     def partition(self, X, svec, radius):
         """Reorder every row so that its pairs within ``radius`` (Å) at
@@ -160,18 +178,40 @@ class PairList:
         return res
 
 
-def _gather_rows(positions, order, images, cell, X):
-    for t in prange(order.shape[0]):
-        a = order[t]
-        m0 = images[t, 0]
-        m1 = images[t, 1]
-        m2 = images[t, 2]
-        for c in range(3):
-            X[t, c] = positions[a, c] + (m0 * cell[0, c] + m1 * cell[1, c]
-                                         + m2 * cell[2, c])
+def _gather_rows(positions, order, images, cell, ref, M, X, worst):
+    """Gather ``X[t] = x[order[t]] + images[t] @ cell`` and, when ``ref``
+    has rows, how far each atom moved beyond the affine map ``M`` of the
+    cell since ``ref`` (row order; ``M`` the identity in NVE): ``worst``
+    gets the largest displacement of each of its chunks of rows (Å), NaN
+    if any is NaN.  A max does not depend on the chunking."""
+    n = order.shape[0]
+    nchunk = worst.shape[0]
+    check = ref.shape[0] > 0
+    for ch in prange(nchunk):
+        w = 0.0
+        for t in range(ch * n // nchunk, (ch + 1) * n // nchunk):
+            a = order[t]
+            m0 = images[t, 0]
+            m1 = images[t, 1]
+            m2 = images[t, 2]
+            s = 0.0
+            for c in range(3):
+                x = positions[a, c]
+                X[t, c] = x + (m0 * cell[0, c] + m1 * cell[1, c] + m2 * cell[2, c])
+                if check:
+                    d = x - (ref[t, 0] * M[0, c] + ref[t, 1] * M[1, c]
+                             + ref[t, 2] * M[2, c])
+                    s += d * d
+            if s > w:
+                w = s
+            elif not s == s:  # NaN: the list is never valid
+                w = np.nan
+        worst[ch] = np.sqrt(w)
 
 
 _gather_serial, _gather_threaded = serial_and_parallel(_gather_rows)
+_NO_REF = np.zeros((0, 3))
+_EYE = np.eye(3)
 
 
 @njit(cache=True, inline="always")
