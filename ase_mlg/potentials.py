@@ -454,7 +454,7 @@ class PairPotential:
             The chunks of rows the work is cut into (a ``RowChunks`` of
             this list is reused with its buffers from call to call; the
             calculator keeps one per list), or their number.  Default:
-            :func:`ase_mlg.partition.chunk_count` for numba's thread count
+            :func:`ase_mlg.partition.row_chunks` for numba's thread count
             on long lists, 1 on short ones.  Same chunks, same bits.
 
         Returns
