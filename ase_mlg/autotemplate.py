@@ -68,7 +68,7 @@ from .pairsum import pair_vectors
 from .query import exact_pairs, half_list, pair_list
 from .template import template_pairs
 
-__all__ = ["WIDTHS", "SELECT", "parse_widths", "PairSet", "exact_pair_set",
+__all__ = ["WIDTHS", "SELECT", "parse_widths", "parse_template", "PairSet", "exact_pair_set",
            "template_pair_set", "compare_pairs", "energy_forces", "force_errors",
            "AutoTemplate"]
 
@@ -102,6 +102,35 @@ def parse_widths(widths):
     if not ws or any(w < 1 or w % 2 == 0 for w in ws):
         raise ValueError(f"widths: expected odd positive ints, got {list(widths)!r}")
     return tuple(sorted(set(ws)))
+
+
+def parse_template(template, tolerance=None):
+    """``MLGCalculator``'s ``template`` and ``tolerance`` as ``(auto,
+    width)``: the :class:`AutoTemplate` policy (None unless ``"auto"`` or
+    an instance) and the fixed width (None: exact mode, or chosen by the
+    policy).
+
+    Raises
+    ------
+    ValueError
+        ``template:`` an even, non-positive or non-integer width;
+        ``tolerance:`` given without ``template="auto"``, or beside an
+        AutoTemplate instance (set it there).
+    """
+    if isinstance(template, AutoTemplate):
+        if tolerance is not None:
+            raise ValueError("tolerance: set it on the AutoTemplate instance")
+        return template, None
+    if isinstance(template, str) and template == "auto":
+        return AutoTemplate(tolerance), None
+    if tolerance is not None:
+        raise ValueError("tolerance: only used with template='auto'")
+    if template is None:
+        return None, None
+    if isinstance(template, bool) or not isinstance(template, (int, np.integer)) \
+            or template < 1 or template % 2 == 0:
+        raise ValueError(f"template: None (exact) or an odd positive int, got {template!r}")
+    return None, int(template)
 
 
 # --------------------------------------------------------------------------
@@ -363,7 +392,7 @@ class AutoTemplate:
         self._since_check = 0
         self._grid = None
         self._cell = None
-        self._grid_rebuilds = None
+        self._generation = None
         self._ref, self._ref_key = None, None
         self._exact = None
         self._seconds = {}
@@ -378,7 +407,7 @@ class AutoTemplate:
             return "new grid"
         if not np.array_equal(grid.box.cell, self._cell):
             return "cell changed"
-        if grid.stats["rebuilds"] != self._grid_rebuilds:
+        if grid.generation != self._generation:
             return "grid rebuilt"
         if self._since_check >= self.check_every:
             return "every K"
@@ -433,7 +462,7 @@ class AutoTemplate:
         return rec
 
     def _key(self, grid):
-        return (id(grid), grid.stats["updates"], grid.stats["rebuilds"])
+        return (id(grid), grid.version)
 
     def _exact_build(self, grid, potential):
         """The exact query at this check, timed as the calculator's exact
@@ -546,7 +575,7 @@ class AutoTemplate:
         self.history.append({"build": self._builds, "width": chosen,
                              "reason": reason, "candidate": candidate, "why": why,
                              "tried": tried, "seconds": seconds, **rec})
-        self._grid, self._grid_rebuilds = grid, grid.stats["rebuilds"]
+        self._grid, self._generation = grid, grid.generation
         self._cell = grid.box.cell.copy()
         self._since_check = 1
         # release the reference lists

@@ -320,6 +320,13 @@ class MLG:
         sweep_cap = _int_arg("sweep_cap", sweep_cap, 1)
         monitor_every = _int_arg("monitor_every", monitor_every, 0)
         try:
+    version : int
+        Changes whenever the grid moves (every :meth:`update` and
+        :meth:`rebuild`): what a list built on the grid compares.
+    generation : int
+        Changes whenever the order is constructed anew (construction,
+        :meth:`rebuild`, a rebuild inside :meth:`update`), not when swap
+        sweeps repair it.
             max_phase_lag = float(max_phase_lag)
         except (TypeError, ValueError):
             raise TypeError(f"max_phase_lag: expected a number, got {max_phase_lag!r}") from None
@@ -343,6 +350,7 @@ class MLG:
     # -- construction -----------------------------------------------------
     def _grid_coordinates(self, positions):
         frac = self.box.fractional(positions)
+        self.version = self.generation = -1
         _check_fractional(frac, self.box.pbc)
         self._origin = wrap_origins(frac, self.box.pbc)
         for a in range(3):
@@ -395,6 +403,8 @@ class MLG:
     # -- public views -------------------------------------------------------
     def view(self):
         """Read-only views of the grid's own arrays (no copies), for the
+        self.version += 1
+        self.generation += 1
         queries built on it.
 
         Returns
@@ -542,6 +552,8 @@ class MLG:
     def phase_lag(self):
         """Largest misregistration between adjacent lines of a periodic
         axis, in site spacings.
+        if not rec["rebuilt"]:
+            self.version += 1  # a rebuild counted it
 
         A line's phase is the mean offset of its stored coordinates from the
         evenly spaced positions ``(i + 1/2) L / n``; seam swaps preserve it,

@@ -64,7 +64,7 @@ from .blocks import BlockIndex
 from .geometry import Box, as_positions
 from .grid import MLG
 from .query import CUT_RADII, CUT_SCALAR, CUT_TABLE, find_pairs
-from .tracker import GridTracker
+from .verletlist import VerletList
 
 __all__ = ["neighbor_list", "primitive_neighbor_list", "NeighborList",
            "PrimitiveNeighborList", "NewPrimitiveNeighborList",
@@ -321,19 +321,15 @@ class _MLGPrimitive:
         self.bothways = bothways
         self.use_scaled_positions = use_scaled_positions
         self.nupdates = 0
-        # a new cell builds a new grid (see ase_mlg.tracker)
-        self._tracker = GridTracker(follow_cell=False)
+        # one grid kept across builds; a new cell builds a new grid (see
+        # ase_mlg.tracker).  ASE's rebuild rule stays here (_needs_build).
+        self.verlet_list = VerletList(self.cutoffs, block=BLOCK, follow_cell=False,
+                                      self_interaction=bool(self_interaction))
 
     @property
     def grid(self):
         """The :class:`~ase_mlg.grid.MLG` of the last build (None before)."""
-        return self._tracker.grid
-
-    @property
-    def nl_grid_updates(self):
-        """List rebuilds served by ``MLG.update`` (swap sweeps) instead of a
-        new grid."""
-        return self._tracker.stats["updates"]
+        return self.verlet_list.grid
 
     # -- rebuild rule -------------------------------------------------------
     def _needs_build(self, pbc, cell, coordinates):
@@ -379,18 +375,13 @@ class _MLGPrimitive:
         else:
             positions = coords
         if n == 0:
-            self._tracker.reset()
+            self.verlet_list.reset()
             i = np.empty(0, int)
             j = np.empty(0, int)
             S = np.empty((0, 3), int)
         else:
-            g = self._tracker.follow(positions, self.cell, pbc)
-            index = BlockIndex(g, BLOCK)
-            rmax = float(self.cutoffs.max())
-            res = find_pairs(index, self.cutoffs + rmax, CUT_RADII,
-                             radii=self.cutoffs,
-                             self_interaction=bool(self.self_interaction),
-                             quantities="jS")
+            self.verlet_list.build(positions, self.cell, pbc)
+            res = self.verlet_list.arrays(quantities="jS")
             i, j, S = res["i"], res["j"], res["S"]
             if not self.bothways:
                 keep = self._half_mask(i, j, S, cellobj, pbc, positions)
@@ -525,10 +516,6 @@ class PrimitiveNeighborList(_MLGPrimitive):
     """
 
     _ase_half = "old"
-
-    def update(self, pbc, cell, coordinates):
-        """Make sure the list is up to date; True if it was rebuilt."""
-        return super().update(pbc, cell, coordinates)
 
 
 class NewPrimitiveNeighborList(_MLGPrimitive):

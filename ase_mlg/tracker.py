@@ -42,17 +42,18 @@ class GridTracker:
         The grid after the last :meth:`follow` (a read-only view of its
         arrays is ``grid.view()``).
     stats : dict
-        Cumulative ``builds`` (new grids), ``updates`` (grids moved by
-        ``MLG.update``), ``sweeps``, ``swaps`` and ``rebuilds`` (rebuilds
-        inside ``MLG.update``: sweep cap, phase lag, cell rank).
+        Cumulative ``grid_builds`` (new grids), ``grid_updates`` (grids
+        moved by ``MLG.update``), ``sweeps``, ``swaps`` and
+        ``grid_rebuilds`` (rebuilds inside ``MLG.update``: sweep cap, phase
+        lag, cell rank).
     """
 
     def __init__(self, follow_cell=True, **grid_kwargs):
         self.follow_cell = bool(follow_cell)
         self.grid_kwargs = grid_kwargs
         self.grid = None
-        self.stats = {"builds": 0, "updates": 0, "sweeps": 0, "swaps": 0,
-                      "rebuilds": 0}
+        self.stats = {"grid_builds": 0, "grid_updates": 0, "sweeps": 0, "swaps": 0,
+                      "grid_rebuilds": 0}
 
     def follow(self, positions, cell, pbc):
         """Move the grid to ``positions`` (Å) in ``cell`` with ``pbc``, or
@@ -67,15 +68,15 @@ class GridTracker:
         else:
             return self._build(positions, cell, pbc)
         st = self.stats
-        st["updates"] += 1
+        st["grid_updates"] += 1
         st["sweeps"] += rec["sweeps"]
         st["swaps"] += rec["swaps"]
-        st["rebuilds"] += int(rec["rebuilt"])
+        st["grid_rebuilds"] += int(rec["rebuilt"])
         return g
 
     def _build(self, positions, cell, pbc):
         self.grid = MLG(positions, cell, pbc, **self.grid_kwargs)
-        self.stats["builds"] += 1
+        self.stats["grid_builds"] += 1
         return self.grid
 
     def reset(self):

@@ -88,7 +88,7 @@ def test_tbb_loads_and_a_threaded_kernel_runs_on_two_threads():
             atoms.get_forces()
             used = max(used, atoms.calc.stats["threads_used"])
         print("LAYER", c["threading_layer"], "PROBLEM", c["problem"],
-              "PROBE", c["probe_threads"], "USED", used, "CHUNKS", atoms.calc._chunks.nchunk)
+              "PROBE", c["probe_threads"], "USED", used, "CHUNKS", atoms.calc.verlet_list.row_partition().nchunk)
     """)
     res = python(code)
     assert res.returncode == 0, res.stderr[-3000:]
@@ -187,7 +187,7 @@ def test_windows_cover_every_pair_and_are_narrow(nchunk):
     atoms = atoms[np.random.default_rng(0).permutation(len(atoms))]
     atoms.calc = MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5))
     atoms.get_forces()
-    pl = atoms.calc._list
+    pl = atoms.calc.verlet_list.pairs
     ch = RowChunks(pl.rowptr, pl.nbr, nchunk)
     a, n = ch.arrays, pl.natoms
     for c in range(ch.nchunk):

@@ -342,7 +342,7 @@ class RDF(_GridFrames, InterRDF):
             if not (np.array_equal(ix1, self._ix[0]) and np.array_equal(ix2, self._ix[1])):
                 self._setup_weights()
                 if self._pairs is not None:
-                    self._pairs.tracker.reset()  # other atoms: a new grid
+                    self._pairs.reset()  # other atoms: a new grid
 
     # -- checks -------------------------------------------------------------
     def _convention(self, ts, pos32):
@@ -478,7 +478,7 @@ class RDF_s(_GridFrames, InterRDF_s):
                 raise ValueError(f"ags: a group changed size at frame {ts.frame}; "
                                  "InterRDF_s keeps one count per atom pair")
             self._setup_sites()
-            self._pairs.tracker.reset()
+            self._pairs.reset()
         box32 = _check_box(ts, self.norm)
         pos32 = np.ascontiguousarray(ts.positions[self._union], dtype=np.float32)
         rmin, rmax = (float(x) for x in self.rdf_settings["range"])

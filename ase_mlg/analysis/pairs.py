@@ -4,16 +4,15 @@
 from numba import njit
 
 from ..parallel import reduction_chunks
-from ..query import exact_pairs
-from ..template import template_pairs
-from ..tracker import GridTracker
+from ..verletlist import VerletList
 
 __all__ = ["PairSource", "n_chunks", "chunk_bounds"]
 
 
 class PairSource:
-    """Unordered pairs within a cutoff, from one MLG kept across frames
-    (:class:`~ase_mlg.tracker.GridTracker`; a new box builds a new grid).
+    """Unordered pairs within a cutoff, one list a frame on one MLG kept
+    across frames (a :class:`~ase_mlg.verletlist.VerletList` without skin;
+    a new box builds a new grid).
 
     ``template=None``: every pair with ``d < cutoff``, all images (exact
     query); an odd ``template`` W: the pairs Boris's W^3 half template
@@ -22,21 +21,25 @@ class PairSource:
 
     def __init__(self, template=None):
         self.template = template
-        self.tracker = GridTracker(follow_cell=False)
+        self.verlet_list = VerletList(0.0, template=template, block=2, follow_cell=False)
 
     def __call__(self, positions, cell, pbc, cutoff, want_S=False):
         """Return ``i, j, S`` (S is None unless ``want_S``): each unordered
         pair once, ``i != j`` or an atom with its own periodic image.
         ``positions`` (Å), ``cell`` (3x3, Å), ``cutoff`` (Å)."""
-        g = self.tracker.follow(positions, cell, pbc)
-        if self.template is not None:
-            i, j, S, _ = template_pairs(g, self.template, cutoff)
-            return i, j, (S if want_S else None)
-        return exact_pairs(g, cutoff, shifts=want_S)
+        vl = self.verlet_list
+        vl.cutoff = cutoff
+        vl.build(positions, cell, pbc)
+        res = vl.arrays(half=True, quantities="ijS" if want_S else "ij")
+        return res["i"], res["j"], res.get("S")
+
+    def reset(self):
+        """Forget the grid (other atoms): the next frame builds one."""
+        self.verlet_list.reset()
 
     def stats(self):
-        st = self.tracker.stats
-        return {"builds": st["builds"], "updates": st["updates"]}
+        st = self.verlet_list.stats
+        return {"builds": st["grid_builds"], "updates": st["grid_updates"]}
 
 
 def n_chunks(npair):

@@ -1,0 +1,315 @@
+"""One pair list kept across calls: Verlet's list on the MLG.
+
+A :class:`VerletList` is everything a list kept across MD steps, list
+builds or trajectory frames needs, in one object: the grid that follows the
+atoms (:class:`~ase_mlg.tracker.GridTracker`), the block index the exact
+query scans, the half list itself (:class:`~ase_mlg.pairlist.PairList`,
+whose arrays the next build overwrites), the reference positions and cell
+of the validity test, the atoms' types in row order, and the unit of
+parallel work (:class:`~ase_mlg.partition.RowChunks`, kept with its buffers).
+Its :attr:`~VerletList.version` changes at every build: what its users
+compare.
+
+* :meth:`VerletList.allocate` builds the first list;
+  :meth:`VerletList.update` brings it to new positions and cell and says
+  whether it rebuilt it, :meth:`VerletList.build` rebuilds it whatever.
+* The list holds every pair with ``d < cutoff + skin``.  It is kept while
+  no pair outside it can have come within ``cutoff``: at a fixed cell the
+  usual ``max |u| < skin / 2`` (Verlet 1967); under a changing cell (NPT)
+  the bound of :meth:`VerletList.update`, which covers strain and
+  displacement together.
+* ``template=None`` lists come from the exact query (:mod:`ase_mlg.query`,
+  docs/design.md §6); ``template=W`` from Boris's W x W x W half template
+  (:mod:`ase_mlg.template`, approximate, docs/design.md §7).
+
+The calculator (:class:`ase_mlg.MLGCalculator`), the neighbour-list classes
+(:mod:`ase_mlg.neighborlist`) and the RDFs' pair source
+(:mod:`ase_mlg.analysis.pairs`) are its users.
+"""
+
+import time
+
+import numpy as np
+
+from .blocks import BlockIndex, block_for_radius
+from .pairsum import shift_vectors
+from .parallel import threads_for
+from .partition import row_chunks
+from .query import CUT_RADII, half_list, pair_list
+from .template import template_pairs
+from .tracker import GridTracker
+
+__all__ = ["VerletList", "ABSURD_LISTS"]
+
+_EYE = np.eye(3)
+#: An atom that moved this many list radii since the list was built, or ten
+#: times the cell edges, has been sent flying (an exploding MD run), not moved.
+ABSURD_LISTS = 100.0
+
+
+class VerletList:
+    """A half pair list in grid order, kept across calls.
+
+    Parameters
+    ----------
+    cutoff : float or (N,) array_like
+        Pair cutoff, Å: one value for every pair, or per-atom radii (the
+        pair cutoff is then ``r_i + r_j``, as in ASE's ``NeighborList``).
+    skin : float
+        Verlet skin, Å: the list holds the pairs with ``d < cutoff + skin``
+        and :meth:`update` keeps it while no pair outside it can have come
+        within ``cutoff``.  0 rebuilds it at every update.
+    closed : bool
+        With ``skin == 0``, hold the pairs at ``d == cutoff`` too (ASE's
+        pair potentials keep them); the list radius is then the next float
+        above ``cutoff``.
+    template : None, odd int or callable
+        None: the exact query.  W: Boris's W^3 half template.  A callable
+        ``(grid, numbers) -> W or None`` chooses at every build (the
+        ``template="auto"`` policy); a cell change then rebuilds the list,
+        so that the policy re-checks its width.
+    types : callable, optional
+        ``numbers -> int array`` of a type index per atom (a potential's
+        ``prepare``); :attr:`types` then holds them in row order.
+    self_interaction : bool
+        Hold each atom's pair with itself (``S = 0``) when its cutoff is > 0.
+    block : int, optional
+        Block edge of the exact query, sites (default
+        :func:`ase_mlg.blocks.block_for_radius` of the list radius).  The
+        set of pairs does not depend on it; the rank order does.
+    follow_cell : bool
+        On a new cell let the grid follow it (NPT keeps one grid), or build
+        a new grid (see :mod:`ase_mlg.tracker`).
+    grid_kwargs : dict, optional
+        Passed to :class:`~ase_mlg.grid.MLG`.
+
+    Attributes
+    ----------
+    version : int
+        -1 before the first build, then one more at every build.
+    pairs : PairList or None
+        The list (ranks, compressed rows).
+    width : int or None
+        The template width of the list, None for the exact query.
+    X : float64[N, 3]
+        Positions of the last update in row order, each in the image the
+        grid keeps it in (Å): the pair kernel's positions.
+    svec : float64[K, 3]
+        Cartesian cell shift of every image code at the last update's cell, Å.
+    types : int32[N] or None
+        Type index of each row.
+    rlist : float
+        List radius, Å (scalar cutoffs).
+    timings : dict
+        Cumulative seconds of ``check`` (gather and validity test, one
+        pass), ``list_build`` (rebuilds, the grid's part included) and
+        ``grid`` (grid updates and sweeps).
+    """
+
+    def __init__(self, cutoff, skin=0.0, closed=False, template=None, types=None,
+                 self_interaction=False, block=None, follow_cell=True, grid_kwargs=None):
+        skin = float(skin)
+        if not np.isfinite(skin) or skin < 0:
+            raise ValueError(f"skin: must be finite and >= 0, got {skin}")
+        self.skin = skin
+        self.closed = bool(closed)
+        if np.ndim(cutoff) == 0:
+            self.radii = None
+            self.cutoff = cutoff
+        else:
+            if template is not None:
+                raise ValueError("template: per-atom radii need the exact query")
+            self.radii = np.ascontiguousarray(cutoff, dtype=np.float64)
+            self._cutoff = self.rlist = None
+        self.template = template
+        self.self_interaction = bool(self_interaction)
+        self.block = block
+        self._types_of = types
+        self._tracker = GridTracker(follow_cell=follow_cell, **dict(grid_kwargs or {}))
+        self.timings = dict.fromkeys(("check", "list_build", "grid"), 0.0)
+        self.version = -1
+        self._builds = 0
+        self.reset()
+
+    @classmethod
+    def allocate(cls, positions, cell, pbc, cutoff, numbers=None, **options):
+        """A list built for ``positions`` (Å) in ``cell`` with ``pbc``;
+        ``options`` are the constructor's."""
+        vl = cls(cutoff, **options)
+        vl.build(positions, cell, pbc, numbers)
+        return vl
+
+    def reset(self):
+        """Forget the list and the grid: the next update builds both."""
+        self._tracker.reset()
+        self.pairs = self.X = self.svec = self.types = self.width = None
+        self._partition = None
+
+    @property
+    def cutoff(self):
+        """The scalar cutoff, Å (None with per-atom radii).  Setting it
+        drops the list: the next update builds one at the new radius."""
+        return self._cutoff
+
+    @cutoff.setter
+    def cutoff(self, cutoff):
+        self._cutoff = float(cutoff)
+        self.rlist = self._cutoff + self.skin
+        if self.skin == 0 and self.closed:
+            self.rlist = float(np.nextafter(self._cutoff, np.inf))
+        self.pairs = None
+
+    @property
+    def grid(self):
+        """The :class:`~ase_mlg.grid.MLG` of the last build (None before)."""
+        return self._tracker.grid
+
+    @property
+    def stats(self):
+        """Cumulative ``list_builds`` and the grid's ``grid_builds``,
+        ``grid_updates``, ``sweeps``, ``swaps`` and ``grid_rebuilds``."""
+        return {"list_builds": self._builds, **self._tracker.stats}
+
+    # -- keeping it -----------------------------------------------------------
+    def update(self, positions, cell, pbc, numbers=None):
+        """Bring the list to ``positions`` (float64 (N, 3), Å) in ``cell``
+        with ``pbc``, rebuilding it when it may miss a pair within the
+        cutoff, when the number of atoms, pbc or ``numbers`` changed;
+        returns True if it rebuilt.  :attr:`X` and :attr:`svec` are then
+        those of the new positions and cell.
+
+        A pair left out was at ``d0 >= rlist`` when the list was built.
+        With ``M`` the affine map of the cell since then and ``u`` each
+        atom's displacement beyond it, its distance now is at least
+        ``smin(M) d0 - 2 max|u|`` (``smin`` the smallest singular value of
+        M: the triangle inequality), so the list is valid while
+        ``smin(M) rlist - 2 max|u| > cutoff``.  At a fixed cell that is the
+        usual ``max|u| < skin / 2``; under NPT the skin covers displacement
+        and strain together.  (LAMMPS's ``check_distance`` bounds the strain
+        by the box corners' displacement instead.)
+        """
+        t0 = time.perf_counter()
+        cell = np.asarray(cell, dtype=np.float64)
+        X = None
+        if (self.pairs is not None and len(positions) == self.pairs.natoms
+                and np.array_equal(pbc, self._pbc)
+                and (numbers is None or np.array_equal(numbers, self._numbers))):
+            X = self._kept_positions(positions, cell)
+        self.timings["check"] += time.perf_counter() - t0
+        if X is None:
+            self.build(positions, cell, pbc, numbers)
+            return True
+        self.X = X
+        self.svec = shift_vectors(self.pairs.shifts, cell)
+        return False
+
+    def _kept_positions(self, positions, cell):
+        """Positions in row order if the list still holds every pair within
+        the cutoff (see :meth:`update`), else None."""
+        ref_cell = self._ref_cell
+        if np.array_equal(cell, ref_cell):
+            M, smin = _EYE, 1.0
+        elif callable(self.template):
+            return None  # the policy re-checks its width on a new cell
+        elif abs(np.linalg.det(ref_cell)) < 1e-12 * max(np.abs(ref_cell).max(), 1.0) ** 3:
+            return None
+        else:
+            M = np.linalg.solve(ref_cell, cell)
+            smin = float(np.linalg.svd(M, compute_uv=False).min())
+        X, umax = self.pairs.gather_check(positions, cell, self._ref, np.ascontiguousarray(M))
+        self._check_displacement(positions, M, umax, cell)
+        if self.skin == 0.0 or self.cutoff is None:
+            return None
+        if M is _EYE:
+            return X if umax < 0.5 * self.skin else None
+        return X if smin * self.rlist - 2.0 * umax > self.cutoff else None
+
+    def _check_displacement(self, positions, M, umax, cell):
+        limit = ABSURD_LISTS * self.rlist + 10.0 * float(np.linalg.norm(cell, axis=1).sum())
+        if not umax > limit:  # NaN too: the grid update names those atoms
+            return
+        order = self.pairs.order
+        u = np.linalg.norm(positions[order] - self._ref @ M, axis=1)
+        bad = np.sort(order[u > limit])
+        raise ValueError(
+            f"positions: atom(s) {bad[:10].tolist()}{' ...' if len(bad) > 10 else ''} "
+            f"moved up to {u.max():.3g} Å since the pair list was built (limit "
+            f"{limit:.3g} Å: {ABSURD_LISTS:g} list radii plus ten times the cell edges); "
+            f"an exploding MD run? Check the time step and overlapping atoms in the "
+            f"start.  calc.reset() accepts an unrelated configuration.")
+
+    # -- building it ----------------------------------------------------------
+    def build(self, positions, cell, pbc, numbers=None):
+        """Build the list for ``positions`` (float64 (N, 3), Å) in ``cell``
+        with ``pbc``, whatever the state (the grid is updated, not rebuilt,
+        where it can be)."""
+        t0 = time.perf_counter()
+        cell = np.asarray(cell, dtype=np.float64)
+        old, self.pairs, self._partition = self.pairs, None, None
+        grid = self._tracker.follow(positions, cell, pbc)
+        positions = grid.positions  # the same numbers, as float64 C arrays
+        t1 = time.perf_counter()
+        self.timings["grid"] += t1 - t0
+        template = self.template
+        self.width = template(grid, numbers) if callable(template) else template
+        n = grid.natoms
+        if self.radii is not None:
+            rmax = float(self.radii.max()) if n else 0.0
+            rat, hint = self.radii + rmax, None
+        else:
+            rat = np.full(n, self.rlist)
+            hint = None if old is None or old.natoms != n else len(old) / max(n, 1)
+        index = BlockIndex(grid, block_for_radius(grid, float(rat.max(initial=0.0)))
+                           if self.block is None else self.block)
+        if self.width is not None:
+            i, j, S, _ = template_pairs(grid, self.width, self.rlist)
+            pl = pair_list(index, i, j, S)
+        elif self.radii is not None:
+            pl = half_list(index, rat, CUT_RADII, radii=self.radii,
+                           self_interaction=self.self_interaction, reuse=old)
+        else:
+            # pairs within the cutoff first in each row, straight from the
+            # scan, where the list holds others
+            split = None if self.rlist == self.cutoff else self.cutoff
+            pl = half_list(index, rat, cut=self.rlist, self_interaction=self.self_interaction,
+                           pairs_per_atom=hint, reuse=old, split=split)
+        del old, index
+        # the validity test's reference, and the kernel's positions through
+        # the per-call gather (so that it is compiled or loaded here, not in
+        # the first call after)
+        self._ref = np.ascontiguousarray(positions[pl.order])
+        self.X = pl.positions(positions, cell)
+        self.svec = shift_vectors(pl.shifts, cell)
+        if self.width is not None:
+            pl.partition(self.X, self.svec, self.cutoff)  # the scan ordered its own
+        if self._types_of is not None:
+            self.types = np.ascontiguousarray(self._types_of(numbers)[pl.order])
+        self._numbers = None if numbers is None else np.array(numbers, copy=True)
+        self._pbc = np.broadcast_to(np.asarray(pbc, dtype=bool), (3,)).copy()
+        self._ref_cell = cell.copy()
+        self.pairs = pl
+        self.version += 1
+        self._builds += 1
+        self.timings["list_build"] += time.perf_counter() - t0
+        return pl
+
+    # -- reading it -----------------------------------------------------------
+    def row_partition(self, nthreads=None):
+        """The unit of parallel work of a pass over the list: its rows cut
+        into :class:`~ase_mlg.partition.RowChunks` for ``nthreads`` threads
+        (default: the package's count for a list this long), kept with
+        their buffers until the next build or another thread count."""
+        if nthreads is None:
+            nthreads = threads_for("pairs", len(self.pairs))
+        if self._partition is None or self._partition[0] != nthreads:
+            self._partition = (nthreads, row_chunks(self.pairs.rowptr, self.pairs.nbr,
+                                                    nthreads))
+        return self._partition[1]
+
+    def arrays(self, half=False, quantities="ijdDS", orient=None):
+        """The list as ``ase.neighborlist`` returns it, at the positions
+        and cell of the last build (see :meth:`ase_mlg.pairlist.PairList.arrays`)."""
+        grid = self.grid
+        extra = {} if orient is None else {"orient": orient}
+        return self.pairs.arrays(grid.positions, np.ascontiguousarray(grid.box.full),
+                                 half=half, quantities=quantities, **extra)
