@@ -1,25 +1,15 @@
 """MLGCalculator: cutoff pair potentials through the MLG, as an ASE Calculator.
 
-Per call the calculator needs the pairs within the potential's cutoff; it
-keeps them in one :class:`~ase_mlg.verletlist.VerletList` (the grid, the
-list built with a Verlet ``skin``, its validity test and its row partition)
-for the life of the system:
-
-* ``template=None`` (exact): every pair with ``d < cutoff + skin``, from the
-  exact MLG query of :mod:`ase_mlg.query`; reusing it until an atom has
-  moved more than ``skin / 2`` is exact.
-* ``template=W`` (odd int): the pairs with ``d < cutoff + skin`` in Boris's
-  W x W x W half template (docs/design.md §7): fast and approximate;
-  :mod:`ase_mlg.tradeoff` measures what it misses.
-* ``template="auto"``: the fastest mode that meets ``tolerance``, exact mode
-  included, as timed and re-checked by :class:`ase_mlg.autotemplate.AutoTemplate`.
-
-When the list expires the grid is repaired by swap sweeps, not rebuilt; it
-follows a changing cell (NPT) by rescaling its stored coordinates
-(docs/design.md §4).  Distance vectors are recomputed every call from the
-current positions and the list's cell shifts, ``D = positions[j] -
-positions[i] + S @ cell``, as ASE does.  Counts are in ``calc.stats``, the
-time of each phase of a call in ``calc.timings``.
+The calculator keeps the pairs within the potential's cutoff in one
+:class:`~ase_mlg.verletlist.VerletList` for the life of the system (the
+grid, the list built with a Verlet ``skin``, its validity test, its row
+partition), from the exact query (``template=None``), Boris's W x W x W
+template (``template=W``, approximate, docs/design.md §7) or the mode
+:class:`ase_mlg.autotemplate.AutoTemplate` picks (``template="auto"``).
+Distance vectors are recomputed every call from the current positions and
+the list's cell shifts, ``D = positions[j] - positions[i] + S @ cell``, as
+ASE does.  Counts are in ``calc.stats``, each phase's time in
+``calc.timings``.
 """
 
 import time
@@ -46,9 +36,8 @@ class MLGCalculator(Calculator):
         E.g. ``LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5)``.
     template : None, odd int, "auto" or AutoTemplate
         ``None`` for exact pair sums; W for Boris's W x W x W template;
-        ``"auto"`` (or an ``AutoTemplate(...)`` with its ``widths`` or
-        ``check_every``) to let the policy pick.  ``calc.template`` is then
-        the width in use (None: exact), ``calc.auto.history`` every check.
+        ``"auto"`` (or an ``AutoTemplate(...)``) to let the policy pick;
+        ``calc.template`` is the width in use (None: exact).
     tolerance : float or dict, optional
         Only with ``template="auto"``: ``{"missed": fraction of interacting
         pairs}`` and/or ``{"force": RMS force error, eV/Å}``; a float is the
@@ -62,10 +51,9 @@ class MLGCalculator(Calculator):
 
     Notes
     -----
-    Properties: ``energy``, ``free_energy``, ``energies`` (eV), ``forces``
-    (eV/Å), ``stress`` and ``stresses`` (Voigt, eV/Å^3, ASE's sign), the
-    last two only when the cell has three dimensions, as in
-    ``ase.calculators.lj.LennardJones``.
+    Properties: ``energy``, ``free_energy``, ``energies`` (eV), ``forces`` (eV/Å),
+    ``stress`` and ``stresses`` (Voigt, eV/Å^3, ASE's sign; only for a cell of
+    three dimensions), as ``ase.calculators.lj.LennardJones``.
     """
 
     implemented_properties = ["energy", "free_energy", "energies", "forces",
@@ -83,12 +71,11 @@ class MLGCalculator(Calculator):
             # ASE's calculators store unknown keywords as parameters and
             # ignore them; a neighbour-list hook ignored would be a silent
             # wrong answer
-            raise TypeError(f"MLGCalculator: unexpected keyword argument(s) "
-                            f"{', '.join(map(repr, unknown))}; MLGCalculator takes "
-                            f"potential, template, skin, grid_kwargs, tolerance, "
-                            f"{', '.join(sorted(_CALCULATOR_KWARGS))} (it finds its "
-                            f"own pairs on its MLG; the potential's parameters go "
-                            f"to the potential, e.g. Morse(epsilon=..., r0=...))")
+            raise TypeError(
+                f"MLGCalculator: unexpected keyword argument(s) {', '.join(map(repr, unknown))}"
+                f"; MLGCalculator takes potential, template, skin, grid_kwargs, tolerance, "
+                f"{', '.join(sorted(_CALCULATOR_KWARGS))} (it finds its own pairs on its MLG; "
+                f"the potential's parameters go to the potential, e.g. Morse(epsilon=..., r0=...))")
         self._tolerance = tolerance
         self.grid_kwargs = dict(grid_kwargs or {})
         # the list keeps d < rc + skin; the potential keeps d <= rc (closed)
@@ -120,17 +107,15 @@ class MLGCalculator(Calculator):
 
     @property
     def stats(self):
-        """Counts: ``calls``, ``pairs`` (evaluated, summed over calls),
-        ``threads_used`` (numba threads that ran the last force kernel) and
-        the list's (:attr:`ase_mlg.verletlist.VerletList.stats`)."""
+        """``calls``, ``pairs`` (summed over calls), ``threads_used`` (by the
+        last force kernel) and :attr:`VerletList.stats <ase_mlg.verletlist.VerletList.stats>`."""
         return {**self._counts, **self.verlet_list.stats}
 
     @property
     def timings(self):
-        """Cumulative wall time (s) of each phase of :meth:`calculate`: the
-        list's ``check``, ``list_build`` and ``grid``
-        (:attr:`ase_mlg.verletlist.VerletList.timings`), ``kernel`` (the
-        pair sum), and the number of ``calls``."""
+        """Cumulative seconds of the list's phases (``check``, ``list_build``,
+        ``grid``: :attr:`VerletList.timings <ase_mlg.verletlist.VerletList.timings>`),
+        of the pair sum (``kernel``), and the number of ``calls``."""
         return {**self.verlet_list.timings, "kernel": self._kernel_seconds,
                 "calls": float(self._counts["calls"])}
 
@@ -141,10 +126,9 @@ class MLGCalculator(Calculator):
 
     def check_state(self, atoms, tol=1e-15):
         """What changed since the last call (ASE's contract), by exact
-        comparison of the four things a pair potential reads: a fifth of the
-        cost of ASE's ``compare_atoms`` (12 ``np.isclose`` over every
-        per-atom array, a third of an MD step at 10^4 atoms), and stricter
-        than its 1e-15 tolerance, so a call is at worst recomputed."""
+        comparison of what a pair potential reads: a fifth of the cost of
+        ASE's ``compare_atoms`` (a third of an MD step at 10^4 atoms), and
+        stricter than its tolerance, so a call is at worst recomputed."""
         old = self.atoms
         if old is None or len(old) != len(atoms):
             return list(all_changes)
@@ -175,8 +159,7 @@ class MLGCalculator(Calculator):
                 and positions.shape[1] == 3 and positions.flags.c_contiguous):
             positions = as_positions(positions)
         # NaN/inf positions fail the list's test, and the grid names the atoms
-        cell = atoms.cell.array
-        vl = self.verlet_list
+        cell, vl = atoms.cell.array, self.verlet_list
         vl.update(positions, cell, atoms.pbc, atoms.numbers)
         t0 = time.perf_counter()
         pl, chunks = vl.pairs, vl.row_partition()
@@ -188,9 +171,8 @@ class MLGCalculator(Calculator):
             energies="energies" in properties, virials="stresses" in properties,
             virial=self._stress_wanted, chunks=chunks)
         self._kernel_seconds += time.perf_counter() - t0
-        self._counts["calls"] += 1
-        self._counts["pairs"] += len(pl)
-        self._counts["threads_used"] = chunks.threads_used()
+        c = self._counts
+        c.update(calls=c["calls"] + 1, pairs=c["pairs"] + len(pl), threads_used=chunks.threads_used())
         self.results.update(energy=res["energy"], free_energy=res["energy"],
                             forces=res["forces"])
         if "energies" in res:
@@ -214,7 +196,5 @@ class MLGCalculator(Calculator):
         return d
 
     def __repr__(self):
-        d = self.todict()
-        d.pop("potential")
-        rest = ", ".join(f"{k}={v!r}" for k, v in d.items())
+        rest = ", ".join(f"{k}={v!r}" for k, v in self.todict().items() if k != "potential")
         return f"MLGCalculator({self.potential!r}, {rest})"
