@@ -5,10 +5,14 @@ Boris's template (:mod:`ase_mlg.template`, through
 :func:`ase_mlg.query.pair_list`) produce: each unordered pair once, in
 compressed sparse rows, with atoms numbered by their *rank* along the
 grid's blocks (5 bytes a pair: an int32 neighbour rank and a one-byte image
-code).  Its consumers read it directly: the pair-potential kernel
-(:mod:`ase_mlg.potentials`) sums over the rows, and :meth:`PairList.arrays`
-writes ``ase.neighborlist``'s arrays (docs/design.md §6).
+code).  Its consumers read it directly: the pair kernel (:mod:`ase_mlg.pairsum`,
+called by :mod:`ase_mlg.potentials`) sums over the rows, and
+:meth:`PairList.arrays` writes ``ase.neighborlist``'s arrays
+(docs/design.md §6): a half list in the grid's orientation, a full list,
+or a half list oriented by a rule on the cell shifts (ASE's two halves).
 """
+
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
@@ -16,9 +20,28 @@ from numba import njit, prange
 from .parallel import (dynamic_schedule, run_chunks, serial_and_parallel, threads_for,
                        use_threads)
 
-__all__ = ["PairList", "pair_vector", "ase_vector"]
+__all__ = ["PairList", "ListArrays", "PairOutput", "Orientation", "pair_vector",
+           "ase_vector"]
 
 NGROUP = 8  # row groups of full lists: fixed, so the output never depends on threads
+
+#: The arrays of a :class:`PairList`, as its kernels read them (the
+#: attributes of the same names; ``zero_code`` an int).
+ListArrays = namedtuple("ListArrays", "rowptr nbr code zero_code shifts images order")
+
+#: The output arrays of :meth:`PairList.arrays` (``out_i`` int64[M], ``out_j``
+#: int64[M], ``out_d`` float64[M], ``out_D`` float64[M, 3], ``out_S``
+#: int64[M, 3]; empty when not wanted) and which of them are written.
+PairOutput = namedtuple("PairOutput",
+                        "out_i out_j out_d out_D out_S want_j want_d want_D want_S")
+
+#: The rule of an oriented half list: per-atom integer ``offsets`` (int64[N,
+#: 3], atom order; (0, 3) for all zero) and an integer ``basis`` (int64[3,
+#: 3]); see :meth:`PairList.arrays`.
+Orientation = namedtuple("Orientation", "offsets basis")
+
+# how _write_pairs writes the pairs of a row
+_HALF, _FULL, _ORIENTED = 0, 1, 2
 
 
 @njit(cache=True, inline="always")
@@ -74,6 +97,13 @@ class PairList:
     def natoms(self):
         return len(self.order)
 
+    @property
+    def list_arrays(self):
+        """The list's arrays as one :data:`ListArrays` (the arrays
+        themselves, not copies), as the kernels take them."""
+        return ListArrays(self.rowptr, self.nbr, self.code, self.zero_code,
+                          self.shifts, self.images, self.order)
+
     def positions(self, positions, cell):
         """Positions in row order, each in the image the grid keeps it in
         (``x[order] + images @ cell``): the ``X`` of the pair kernel, Å."""
@@ -111,7 +141,7 @@ class PairList:
         part(self.rowptr, self.nbr, self.code, X, svec, radius * radius,
              min(max(n, 1), 64))
 
-    def arrays(self, positions, cell, half=False, quantities="ijdDS"):
+    def arrays(self, positions, cell, half=False, quantities="ijdDS", orient=None):
         """The list as ``ase.neighborlist`` returns it.
 
         Parameters
@@ -121,11 +151,27 @@ class PairList:
         cell : (3, 3) float64
             The cell the shifts refer to (Å).
         half : bool
-            Each unordered pair once, in grid order; otherwise at both atoms
-            (the mirror is ``(j, i, -D, d, -S)``, bitwise what ASE computes
-            for it), sorted by ``i`` and within one ``i`` in grid order.
+            Each unordered pair once, in grid order, in the grid's
+            orientation; otherwise at both atoms (the mirror is ``(j, i, -D,
+            d, -S)``, bitwise what ASE computes for it), sorted by ``i`` and
+            within one ``i`` in grid order.  Not read with ``orient``.
         quantities : str
             Which of 'jdDS' to fill ('i' is always returned).
+        orient : (offsets, basis), optional
+            Each unordered pair once, oriented by a rule: ``offsets``
+            int64[N, 3] per atom (atom order; None for all zero) and
+            ``basis`` int64[3, 3].  A pair is written as ``(i, j, D, d, S)``
+            where ``n = (S + offsets[i] - offsets[j]) @ basis`` is
+            lexicographically positive (``n[0] > 0``, or ``n[0] == 0 and
+            n[1] > 0``, or ``n[0] == n[1] == 0 and n[2] > 0``) or ``n == 0
+            and i <= j``, else as its mirror; sorted by ``i`` as the full
+            list, so that the result is, element for element and in order,
+            the full list filtered by that rule.  ``offsets`` 0 and the
+            identity are ``ase.neighborlist.NewPrimitiveNeighborList``'s
+            half; the integer wrap offsets into the Minkowski-reduced cell
+            and ``rint(inv(op))`` of its operation ``op``,
+            ``PrimitiveNeighborList``'s.  A self pair (i, i, S = 0) is
+            written once.
 
         Returns
         -------
@@ -133,8 +179,14 @@ class PairList:
         arrays.  The same for any thread count: a fixed number of row
         groups, each with its own cursor per atom.
         """
-        pl = self
-        n = pl.natoms
+        pl = self.list_arrays
+        n = self.natoms
+        if orient is not None:
+            orient = _orientation(orient, n)
+            mode = _ORIENTED
+        else:
+            orient = _NO_ORIENT
+            mode = _HALF if half else _FULL
         want = {q: (q in quantities) for q in "jdDS"}
         nth = threads_for("atoms", n)
         X = np.empty((n, 3))
@@ -142,20 +194,24 @@ class PairList:
         rows = np.linspace(0, n, ngroup + 1).astype(np.int64)
         run_chunks(_take_rows, lambda g: (positions, pl.order, rows[g], rows[g + 1], X),
                    ngroup, nth)
-        if half:
-            cur = np.zeros(0, np.int64)
-            m = len(pl)
+        if mode == _HALF:
+            cur = np.zeros((ngroup, 0), np.int64)
+            m = len(self)
         else:
             # every group of rows counts its pairs per rank in its own row of
             # the table, so each group gets its own cursor into every atom's
             # range of the output.  Cursors are indexed by rank, not atom: a
             # row's neighbours are near it in rank, so the cursor table is
             # read and written locally (by atom it was a random access per
-            # pair with shuffled atoms)
+            # pair with shuffled atoms).  An oriented half counts each pair
+            # at the atom it is written at
             cur = np.zeros((ngroup, n), dtype=np.int64)
-            run_chunks(_count_full, lambda g: (pl.rowptr, pl.nbr, pl.code,
-                                                pl.zero_code, rows[g],
-                                                rows[g + 1], cur[g]), ngroup, nth)
+            if mode == _FULL:
+                run_chunks(_count_full, lambda g: (pl, rows[g], rows[g + 1], cur[g]),
+                           ngroup, nth)
+            else:
+                run_chunks(_count_oriented, lambda g: (pl, orient, rows[g], rows[g + 1],
+                                                       cur[g]), ngroup, nth)
             start = np.zeros(n + 1, dtype=np.int64)
             run_chunks(_atom_totals, lambda g: (cur, pl.order, rows[g], rows[g + 1],
                                                 start), ngroup, nth)
@@ -164,18 +220,40 @@ class PairList:
                        ngroup, nth)
             m = int(start[-1])
         res = {"i": np.empty(m, np.int64)}
-        out = {"j": _E_I, "d": _E_F, "D": _E_2, "S": _E_2I}
+        arr = {"j": _E_I, "d": _E_F, "D": _E_2, "S": _E_2I}
         for q, shape, dt in (("j", (m,), np.int64), ("d", (m,), np.float64),
                              ("D", (m, 3), np.float64), ("S", (m, 3), np.int64)):
             if want[q]:
-                res[q] = out[q] = np.empty(shape, dt)
+                res[q] = arr[q] = np.empty(shape, dt)
+        out = PairOutput(res["i"], arr["j"], arr["d"], arr["D"], arr["S"], want["j"],
+                         want["d"], want["D"], want["S"])
         run_chunks(_write_pairs,
-                    lambda g: (pl.rowptr, pl.nbr, pl.code, pl.zero_code, pl.shifts,
-                               pl.images, pl.order, X, cell, rows[g], rows[g + 1],
-                               not half, cur[g] if not half else cur, res["i"],
-                               out["j"], out["d"], out["D"], out["S"], want["j"],
-                               want["d"], want["D"], want["S"]), ngroup, nth)
+                   lambda g: (pl, X, cell, rows[g], rows[g + 1], mode, orient, cur[g],
+                              out), ngroup, nth)
         return res
+
+
+def _orientation(orient, n):
+    """``orient`` of :meth:`PairList.arrays` as an :data:`Orientation` of
+    contiguous int64 arrays, checked."""
+    try:
+        offsets, basis = orient
+    except (TypeError, ValueError):
+        raise ValueError(f"orient: expected (offsets, basis), got {orient!r}") from None
+    if offsets is None:
+        offsets = _E_2I
+    else:
+        offsets = np.asarray(offsets)
+        if offsets.shape != (n, 3) or not (offsets.size == 0
+                                           or np.issubdtype(offsets.dtype, np.integer)):
+            raise ValueError(f"orient: offsets must be integers of shape ({n}, 3), got "
+                             f"{offsets.dtype} {offsets.shape}")
+        offsets = np.ascontiguousarray(offsets, dtype=np.int64)
+    basis = np.asarray(basis)
+    if basis.shape != (3, 3) or not np.issubdtype(basis.dtype, np.integer):
+        raise ValueError(f"orient: basis must be integers of shape (3, 3), got "
+                         f"{basis.dtype} {basis.shape}")
+    return Orientation(offsets, np.ascontiguousarray(basis, dtype=np.int64))
 
 
 def _gather_rows(positions, order, images, cell, ref, M, X, worst):
@@ -258,14 +336,78 @@ _partition_serial, _partition_threaded = serial_and_parallel(_partition_rows)
 
 
 @njit(cache=True, nogil=True)
-def _count_full(rowptr, nbr, code, zero_code, r0, r1, cnt):
+def _count_full(lists, r0, r1, cnt):
     """Pairs each rank gets from rows [r0, r1) of a half list written at
     both atoms (the mirror of a self pair (i, i, 0) is itself)."""
+    rowptr = lists.rowptr
+    nbr = lists.nbr
+    code = lists.code
+    zero_code = lists.zero_code
     for t in range(r0, r1):
         cnt[t] += rowptr[t + 1] - rowptr[t]
         for p in range(rowptr[t], rowptr[t + 1]):
             u = nbr[p]
             if not (u == t and code[p] == zero_code):
+                cnt[u] += 1
+
+
+@njit(cache=True, inline="always")
+def _pair_shift(shifts, images, k, t, u):
+    """The cell shift ``S = m + images[u] - images[t]`` of a list pair."""
+    return (shifts[k, 0] + images[u, 0] - images[t, 0],
+            shifts[k, 1] + images[u, 1] - images[t, 1],
+            shifts[k, 2] + images[u, 2] - images[t, 2])
+
+
+@njit(cache=True, inline="always")
+def _oriented(offsets, basis, a, j, S0, S1, S2):
+    """Which entries of the pair (a, j, S) an oriented half keeps:
+    ``(a, j, S)`` itself when ``n = (S + offsets[a] - offsets[j]) @ basis``
+    is lexicographically positive or n == 0 and a <= j; its mirror ``(j, a,
+    -S)`` (whose n is -n) by the same rule.  One of the two unless n == 0
+    and a == j (the self pair, with an invertible basis)."""
+    e0 = S0
+    e1 = S1
+    e2 = S2
+    if offsets.shape[0] > 0:
+        e0 += offsets[a, 0] - offsets[j, 0]
+        e1 += offsets[a, 1] - offsets[j, 1]
+        e2 += offsets[a, 2] - offsets[j, 2]
+    sign = 0
+    for c in range(3):
+        nc = e0 * basis[0, c] + e1 * basis[1, c] + e2 * basis[2, c]
+        if nc != 0:
+            sign = 1 if nc > 0 else -1
+            break
+    if sign == 0:
+        return a <= j, j <= a
+    return sign > 0, sign < 0
+
+
+@njit(cache=True, nogil=True)
+def _count_oriented(lists, orient, r0, r1, cnt):
+    """Pairs each rank gets from rows [r0, r1) of the half list oriented by
+    ``orient`` (see :func:`_oriented`): a pair kept as it is counts at its
+    row, one kept as its mirror at its neighbour."""
+    rowptr = lists.rowptr
+    nbr = lists.nbr
+    code = lists.code
+    zero_code = lists.zero_code
+    shifts = lists.shifts
+    images = lists.images
+    order = lists.order
+    offsets = orient.offsets
+    basis = orient.basis
+    for t in range(r0, r1):
+        a = order[t]
+        for p in range(rowptr[t], rowptr[t + 1]):
+            u = nbr[p]
+            k = code[p]
+            S0, S1, S2 = _pair_shift(shifts, images, k, t, u)
+            direct, mirror = _oriented(offsets, basis, a, order[u], S0, S1, S2)
+            if direct:
+                cnt[t] += 1
+            if mirror and not (u == t and k == zero_code):
                 cnt[u] += 1
 
 
@@ -289,63 +431,73 @@ def _atom_totals(cnt, order, r0, r1, tot):
         tot[order[t] + 1] = s
 
 
+@njit(cache=True, inline="always")
+def _put(out, q, i, j, d, Dx, Dy, Dz, S0, S1, S2):
+    """Entry ``q`` of the output: ``(i, j, d, D, S)``, the wanted ones."""
+    out.out_i[q] = i
+    if out.want_j:
+        out.out_j[q] = j
+    if out.want_d:
+        out.out_d[q] = d
+    if out.want_D:
+        out_D = out.out_D
+        out_D[q, 0] = Dx
+        out_D[q, 1] = Dy
+        out_D[q, 2] = Dz
+    if out.want_S:
+        out_S = out.out_S
+        out_S[q, 0] = S0
+        out_S[q, 1] = S1
+        out_S[q, 2] = S2
+
+
 @njit(cache=True, nogil=True)
-def _write_pairs(rowptr, nbr, code, zero_code, shifts, images, order, X, cell,
-                 r0, r1, full, cur, out_i, out_j, out_d, out_D, out_S, want_j, want_d,
-                 want_D, want_S):
+def _write_pairs(lists, X, cell, r0, r1, mode, orient, cur, out):
     """Write the pairs of rows [r0, r1) with D, d, S computed as ASE does.
 
-    ``full``: each pair at both atoms, at the cursors ``cur[rank]``; the
-    mirror is ``(j, i, -D, d, -S)`` (bitwise what ASE computes for it:
-    IEEE negation is exact).  Otherwise once, at ``rowptr[t]``.  ``out_i``
-    is written with each entry (not in a pass of its own: one more stream
-    to lines the pair already writes)."""
+    ``mode`` _FULL: each pair at both atoms, at the cursors ``cur[rank]``;
+    the mirror is ``(j, i, -D, d, -S)`` (bitwise what ASE computes for it:
+    IEEE negation is exact).  _ORIENTED: each pair once, as it is at
+    ``cur[t]`` or as its mirror at ``cur[u]``, as :func:`_oriented` says.
+    _HALF: once, as it is, at ``rowptr[t]``.  ``out_i`` is written with each
+    entry (not in a pass of its own: one more stream to lines the pair
+    already writes)."""
+    rowptr = lists.rowptr
+    nbr = lists.nbr
+    code = lists.code
+    zero_code = lists.zero_code
+    shifts = lists.shifts
+    images = lists.images
+    order = lists.order
+    offsets = orient.offsets
+    basis = orient.basis
+    full = mode == _FULL
+    oriented = mode == _ORIENTED
     for t in range(r0, r1):
         a = order[t]
         for p in range(rowptr[t], rowptr[t + 1]):
             u = nbr[p]
             j = order[u]
             k = code[p]
-            S0 = shifts[k, 0] + images[u, 0] - images[t, 0]
-            S1_ = shifts[k, 1] + images[u, 1] - images[t, 1]
-            S2 = shifts[k, 2] + images[u, 2] - images[t, 2]
+            S0, S1_, S2 = _pair_shift(shifts, images, k, t, u)
             Dx, Dy, Dz = ase_vector(X, u, t, S0, S1_, S2, cell)
             d = np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz)
-            if full:
-                q = cur[t]
-                cur[t] = q + 1
-            else:
-                q = p
-            out_i[q] = a
-            if want_j:
-                out_j[q] = j
-            if want_d:
-                out_d[q] = d
-            if want_D:
-                out_D[q, 0] = Dx
-                out_D[q, 1] = Dy
-                out_D[q, 2] = Dz
-            if want_S:
-                out_S[q, 0] = S0
-                out_S[q, 1] = S1_
-                out_S[q, 2] = S2
-            if not full or (u == t and k == zero_code):
+            direct = True
+            mirror = full
+            if oriented:
+                direct, mirror = _oriented(offsets, basis, a, j, S0, S1_, S2)
+            if direct:
+                if full or oriented:
+                    q = cur[t]
+                    cur[t] = q + 1
+                else:
+                    q = p
+                _put(out, q, a, j, d, Dx, Dy, Dz, S0, S1_, S2)
+            if not mirror or (u == t and k == zero_code):
                 continue
             q = cur[u]
             cur[u] = q + 1
-            out_i[q] = j
-            if want_j:
-                out_j[q] = a
-            if want_d:
-                out_d[q] = d
-            if want_D:
-                out_D[q, 0] = -Dx
-                out_D[q, 1] = -Dy
-                out_D[q, 2] = -Dz
-            if want_S:
-                out_S[q, 0] = -S0
-                out_S[q, 1] = -S1_
-                out_S[q, 2] = -S2
+            _put(out, q, j, a, d, -Dx, -Dy, -Dz, -S0, -S1_, -S2)
 
 
 @njit(cache=True, nogil=True)
@@ -365,3 +517,4 @@ _E_I = np.empty(0, np.int64)
 _E_F = np.empty(0)
 _E_2 = np.empty((0, 3))
 _E_2I = np.empty((0, 3), np.int64)
+_NO_ORIENT = Orientation(_E_2I, np.eye(3, dtype=np.int64))

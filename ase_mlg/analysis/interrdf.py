@@ -67,7 +67,8 @@ from MDAnalysis.lib.mdamath import triclinic_vectors
 
 from .backends import configure
 from .checks import check_nbins, check_rmax, check_template
-from .mda_kernels import MDAConvention, mda_counts, mda_s_counts
+from .mda_kernels import (HistogramBins, MDAConvention, PairWeights, SiteBins, SiteMaps,
+                          mda_counts, mda_s_counts)
 from .pairs import PairSource, n_chunks
 
 __all__ = ["RDF", "RDF_s"]
@@ -375,11 +376,11 @@ class RDF(_GridFrames, InterRDF):
             conv = self._convention(ts, pos32)
             rmax = float(self._maxrange)
             pi, pj = _frame_candidates(self._pairs, ts, pos32, rmax)
-            counts = mda_counts(
-                pi, pj, conv.coords, conv.kind, conv.box, conv.half, conv.inv,
-                conv.nsgrid, rmax, rmax * rmax, float(self.rdf_settings["range"][0]),
-                rmax, self.results.edges, self._m1, self._m2, *self._keys,
-                self._use_keys, n_chunks(len(pi)))
+            bins = HistogramBins(float(self.rdf_settings["range"][0]), rmax,
+                                 self.results.edges)
+            weights = PairWeights(self._m1, self._m2, *self._keys, self._use_keys)
+            counts = mda_counts(pi, pj, conv.metric(rmax), bins, weights,
+                                n_chunks(len(pi)))
             self.results.count += counts
         if self.norm == "rdf":
             self.results.volume_cum += ts.volume
@@ -484,11 +485,11 @@ class RDF_s(_GridFrames, InterRDF_s):
         rmin, rmax = (float(x) for x in self.rdf_settings["range"])
         pi, pj = _frame_candidates(self._pairs, ts, pos32, rmax)
         nbins = int(self.rdf_settings["bins"])
+        bins = SiteBins(rmin, rmax, nbins)
         for i, (u1, u2, maps) in enumerate(self._maps):
             conv = MDAConvention(pos32, box32, len(u1), len(u2), u1, u2, rmax)
-            mda_s_counts(pi, pj, conv.coords, conv.kind, conv.box, conv.half,
-                         conv.inv, conv.nsgrid, rmax, rmax * rmax, rmin, rmax,
-                         nbins, *maps, self.results.count[i])
+            mda_s_counts(pi, pj, conv.metric(rmax), bins, SiteMaps(*maps),
+                         self.results.count[i])
         if self.norm == "rdf":
             self.results.volume_cum += ts.volume
 

@@ -13,6 +13,7 @@ are in Å.
 """
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit, prange
@@ -23,7 +24,32 @@ from MDAnalysis.lib.mdamath import triclinic_vectors
 
 from .pairs import chunk_bounds
 
-__all__ = ["MDAConvention", "fastns_max_cutoff", "mda_counts", "mda_s_counts"]
+__all__ = ["MDAConvention", "Metric", "HistogramBins", "PairWeights", "SiteBins",
+           "SiteMaps", "fastns_max_cutoff", "mda_counts", "mda_s_counts"]
+
+#: How ``capped_distance`` measures and keeps a pair in one frame: an
+#: :class:`MDAConvention`'s ``coords`` (float32 (n, 3), Å), ``kind``,
+#: ``box``, ``half``, ``inv`` and ``nsgrid``, with the cutoff ``cut`` (rmax,
+#: Å) and its square ``cut2`` (Å^2).  :meth:`MDAConvention.metric` builds it.
+Metric = namedtuple("Metric", "coords kind box half inv nsgrid cut cut2")
+
+#: InterRDF's bins: ``np.histogram``'s ``range`` (``first``, ``last``, Å)
+#: and its ``edges`` (float64, Å).
+HistogramBins = namedtuple("HistogramBins", "first last edges")
+
+#: How many ordered pairs InterRDF counts for two atoms (see
+#: :func:`_pair_weight`): multiplicities ``m1``, ``m2`` of each atom in g1,
+#: g2; per atom the sorted exclusion keys ``kk1[kp1[a]:kp1[a + 1]]`` with
+#: multiplicities ``kc1`` (likewise ``kp2``, ``kk2``, ``kc2``); ``use_keys``
+#: whether any exclusion applies.
+PairWeights = namedtuple("PairWeights", "m1 m2 kp1 kk1 kc1 kp2 kk2 kc2 use_keys")
+
+#: InterRDF_s's bins: ``nbins`` over [``rmin``, ``rmax``) (Å).
+SiteBins = namedtuple("SiteBins", "rmin rmax nbins")
+
+#: The positions of each atom in ag1 and ag2 of InterRDF_s: atom x is at
+#: ``pos1[ptr1[x]:ptr1[x + 1]]`` in ag1 (likewise ``ptr2``, ``pos2``).
+SiteMaps = namedtuple("SiteMaps", "ptr1 pos1 ptr2 pos2")
 
 _PLAIN, _ORTHO_LAZY, _ORTHO_ROUND, _TRICLINIC = 0, 1, 2, 3
 _FLT_EPSILON = np.float32(np.finfo(np.float32).eps)
@@ -161,17 +187,36 @@ def _pair_weight(a, b, m1, m2, kp1, kk1, kc1, kp2, kk2, kc2, use_keys):
 
 
 @njit(cache=True, parallel=True)
-def mda_counts(pi, pj, W, kind, box, half, inv, nsgrid, cut, cut2, first,
-               last, edges, m1, m2, kp1, kk1, kc1, kp2, kk2, kc2, use_keys,
-               nchunk):
+def mda_counts(pi, pj, metric, bins, weights, nchunk):
     """InterRDF's histogram (int64 per bin) over the unordered candidate
     pairs (pi, pj), pi != pj, plus every atom with itself (d = 0).
 
-    ``W, kind, box, half, inv, nsgrid`` are an :class:`MDAConvention`'s;
-    ``cut`` is rmax (Å) and ``cut2`` its square; bins are ``np.histogram``'s
-    over ``edges`` (``first``, ``last``: its range, Å); m1, m2 and the key
-    arrays weigh each pair as :func:`_pair_weight` says.
+    ``metric`` (:data:`Metric`) measures and keeps the pairs as
+    ``capped_distance``; ``bins`` (:data:`HistogramBins`) are
+    ``np.histogram``'s; ``weights`` (:data:`PairWeights`) weigh each pair
+    as :func:`_pair_weight` says; ``nchunk`` chunks of pairs.
     """
+    # fields read here: the parallel loop cannot read a namedtuple's
+    W = metric.coords
+    kind = metric.kind
+    box = metric.box
+    half = metric.half
+    inv = metric.inv
+    nsgrid = metric.nsgrid
+    cut = metric.cut
+    cut2 = metric.cut2
+    first = bins.first
+    last = bins.last
+    edges = bins.edges
+    m1 = weights.m1
+    m2 = weights.m2
+    kp1 = weights.kp1
+    kk1 = weights.kk1
+    kc1 = weights.kc1
+    kp2 = weights.kp2
+    kk2 = weights.kk2
+    kc2 = weights.kc2
+    use_keys = weights.use_keys
     nb = edges.size - 1
     denom = last - first
     hist = np.zeros((nchunk, nb), dtype=np.int64)
@@ -200,16 +245,31 @@ def mda_counts(pi, pj, W, kind, box, half, inv, nsgrid, cut, cut2, first,
 
 
 @njit(cache=True)
-def mda_s_counts(pi, pj, W, kind, box, half, inv, nsgrid, cut, cut2, rmin,
-                 rmax, nbins, ptr1, pos1, ptr2, pos2, out):
+def mda_s_counts(pi, pj, metric, bins, sites, out):
     """Add InterRDF_s's per-site counts to ``out[p, q, k]`` (p, q positions
     in ag1, ag2) over the unordered candidate pairs (pi, pj) and every atom
-    with itself; bins as InterRDF_s: ``int((d - rmin) * nbins / (rmax -
-    rmin))`` truncated toward zero, counted when 0 <= k < nbins.
+    with itself; bins (:data:`SiteBins`) as InterRDF_s: ``int((d - rmin) *
+    nbins / (rmax - rmin))`` truncated toward zero, counted when 0 <= k <
+    nbins.
 
-    The convention arguments are :func:`mda_counts`'s; atom x sits at the
-    positions ``pos1[ptr1[x]:ptr1[x+1]]`` of ag1 (likewise ag2).
+    ``metric`` is :func:`mda_counts`'s; ``sites`` (:data:`SiteMaps`) says
+    where each atom is in ag1 and ag2.
     """
+    W = metric.coords
+    kind = metric.kind
+    box = metric.box
+    half = metric.half
+    inv = metric.inv
+    nsgrid = metric.nsgrid
+    cut = metric.cut
+    cut2 = metric.cut2
+    rmin = bins.rmin
+    rmax = bins.rmax
+    nbins = bins.nbins
+    ptr1 = sites.ptr1
+    pos1 = sites.pos1
+    ptr2 = sites.ptr2
+    pos2 = sites.pos2
     for t in range(pi.size + ptr1.size - 1):
         if t < pi.size:
             a = pi[t]
@@ -283,7 +343,7 @@ class MDAConvention:
     nsgrid : bool
         True for the grid search (FastNS), False for brute force.
     coords, kind, box, half, inv
-        The kernels' view of the frame (:func:`mda_counts`).
+        The kernels' view of the frame (:meth:`metric`).
     """
 
     def __init__(self, pos32, box32, n1, n2, idx1, idx2, maxrange):
@@ -338,3 +398,10 @@ class MDAConvention:
                     self.kind = _ORTHO_ROUND
                     self.inv[:] = (1.0 / box32[:3].astype(np.float64)).astype(np.float32)
         self.coords = W
+
+    def metric(self, cut):
+        """The kernels' :data:`Metric` of this frame with the cutoff ``cut``
+        (rmax, Å; ``cut2 = cut * cut``)."""
+        cut = float(cut)
+        return Metric(self.coords, self.kind, self.box, self.half, self.inv,
+                      self.nsgrid, cut, cut * cut)

@@ -13,11 +13,25 @@ Units are ASE's: positions Å, momenta amu Å / (ASE time), forces eV/Å,
 masses amu, time steps ASE time units.
 """
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
 __all__ = ["verlet_drift", "verlet_drift_rattle", "verlet_kick",
-           "langevin_noise", "langevin_drift", "langevin_kick", "no_fixed"]
+           "langevin_noise", "langevin_drift", "langevin_kick", "no_fixed",
+           "LangevinCoefficients", "NoiseCorrection"]
+
+#: The scalar coefficients of a Langevin step: ``c1`` (ASE time) and ``c2``
+#: (dimensionless) of ``Langevin.updatevars``, and the time step ``dt``
+#: (ASE time units).
+LangevinCoefficients = namedtuple("LangevinCoefficients", "c1 c2 dt")
+
+#: ASE's ``fixcm`` correction of the Langevin noise: ``fixcm`` (bool),
+#: ``spos`` = ``rnd_pos.sum(axis=0)`` and ``svel`` = ``(rnd_vel *
+#: masses).sum(axis=0)`` ((3,) float64, numpy's sums so that the rounding is
+#: ASE's) and ``factor`` = ``sqrt(N / (N - 1))``; not read without ``fixcm``.
+NoiseCorrection = namedtuple("NoiseCorrection", "fixcm spos svel factor")
 
 
 @njit(cache=True)
@@ -128,12 +142,11 @@ def langevin_noise(xi, eta, c3, c4, c5, rnd_pos, rnd_vel):
 
 
 @njit(cache=True)
-def langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel, spos, svel, factor,
-                   fixcm, c1, c2, dt, fixed):
+def langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel, com, coef, fixed):
     """First half of ASE's Langevin step (Vanden-Eijnden and Ciccotti,
     Eq. 23), in place.
 
-    ``v = p / m``; with ``fixcm`` the noise is made momentum-free and
+    ``v = p / m``; with ``com.fixcm`` the noise is made momentum-free and
     rescaled (``rnd_pos -= spos / N``, ``rnd_vel -= svel / (m N)``, both
     times ``factor``, written back to the buffers as ASE keeps them);
     ``v += c1 f / m - c2 v + rnd_vel``; ``x += dt v + rnd_pos`` except for
@@ -154,21 +167,22 @@ def langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel, spos, svel, factor,
     m : (N,) float64 array
         The masses the integrator was set up with (amu; ``self.masses``).
     rnd_pos, rnd_vel : (N, 3) float64 arrays
-        From :func:`langevin_noise`; corrected in place when ``fixcm``.
-    spos, svel : (3,) float64 arrays
-        ``rnd_pos.sum(axis=0)`` and ``(rnd_vel * masses).sum(axis=0)``
-        (numpy's sums, so that the rounding is ASE's).
-    factor : float
-        ``sqrt(N / (N - 1))``.
-    fixcm : bool
-        ASE's ``fixcm``.
-    c1, c2 : float
-        Coefficients of ``updatevars`` (ASE time, dimensionless).
-    dt : float
-        Time step (ASE time units).
+        From :func:`langevin_noise`; corrected in place when ``com.fixcm``.
+    com : NoiseCorrection
+        ASE's ``fixcm`` and the sums and factor of its centre-of-mass
+        correction.
+    coef : LangevinCoefficients
+        ``c1``, ``c2`` of ``updatevars`` and the time step ``dt``.
     fixed : (N,) bool array
         True where the atom is fixed (FixAtoms).
     """
+    fixcm = com.fixcm
+    spos = com.spos
+    svel = com.svel
+    factor = com.factor
+    c1 = coef.c1
+    c2 = coef.c2
+    dt = coef.dt
     n = x.shape[0]
     fn = float(n)
     for a in range(n):

@@ -3,7 +3,8 @@
 import numpy as np
 from ase.md.langevin import Langevin as _ASELangevin
 
-from .kernels import langevin_drift, langevin_kick, langevin_noise, no_fixed
+from .kernels import (LangevinCoefficients, NoiseCorrection, langevin_drift, langevin_kick,
+                      langevin_noise, no_fixed)
 from .checks import check_dynamics_args, check_langevin_args
 from .fastpath import (CompiledRefresh, as_float_array, compiled_reason, fixed_mask, forces_now,
                        masses_now)
@@ -129,8 +130,9 @@ class Langevin(CompiledRefresh, _ASELangevin):
         x = atoms.arrays["positions"]
         p = atoms.arrays["momenta"]
         dt = float(self.dt)
-        langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel, spos, svel,
-                               factor, bool(self.fix_com), c1, c2, dt, fixed)
+        langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel,
+                       NoiseCorrection(bool(self.fix_com), spos, svel, factor),
+                       LangevinCoefficients(c1, c2, dt), fixed)
         # ASE stores the velocity and the noise as attributes (Asap reads them)
         self.v, self.rnd_pos, self.rnd_vel = v, rnd_pos, rnd_vel
         f = forces_now(atoms)
