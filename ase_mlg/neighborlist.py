@@ -325,6 +325,7 @@ class _MLGPrimitive:
         # ase_mlg.tracker).  ASE's rebuild rule stays here (_needs_build).
         self.verlet_list = VerletList(self.cutoffs, block=BLOCK, follow_cell=False,
                                       self_interaction=bool(self_interaction))
+        self._reduced = (None, None, None)  # ASE's half: (cell and pbc, reduced cell, basis)
 
     @property
     def grid(self):
@@ -381,11 +382,11 @@ class _MLGPrimitive:
             S = np.empty((0, 3), int)
         else:
             self.verlet_list.build(positions, self.cell, pbc)
-            res = self.verlet_list.arrays(quantities="jS")
+            # bothways=False: ASE's half straight from the half list, each
+            # pair once in the orientation ASE keeps
+            orient = None if self.bothways else self._orientation(cellobj, pbc, positions)
+            res = self.verlet_list.arrays(quantities="jS", orient=orient)
             i, j, S = res["i"], res["j"], res["S"]
-            if not self.bothways:
-                keep = self._half_mask(i, j, S, cellobj, pbc, positions)
-                i, j, S = i[keep], j[keep], S[keep]
             if self.sorted:
                 i, j, S = self._sort(i, j, S, pbc, coords)
         self.pair_first = i
@@ -443,30 +444,26 @@ class _MLGPrimitive:
         order = np.lexsort((S[:, 2], S[:, 1], S[:, 0], key))
         return i[order], j[order], S[order]
 
-    def _half_mask(self, i, j, S, cellobj, pbc, positions):
+    def _orientation(self, cellobj, pbc, positions):
+        """The rule by which ASE's primitive keeps one of ``(i, j, S)`` and
+        ``(j, i, -S)`` (``PairList.arrays``' ``orient``): ``n = (S +
+        offsets[i] - offsets[j]) @ basis`` lexicographically positive, or
+        zero with ``i <= j``."""
         if self._ase_half == "new":
-            # ase NewPrimitiveNeighborList: a criterion on the cell shift
-            sx, sy, sz = S.T
-            mask = sz > 0
-            mask &= sy == 0
-            mask |= sy > 0
-            mask &= sx == 0
-            mask |= sx > 0
-            mask |= (i <= j) & (S == 0).all(axis=1)
-            return mask
-        # ase PrimitiveNeighborList: positive half of the image shifts n in
-        # the Minkowski-reduced basis of the wrapped positions
+            # ase NewPrimitiveNeighborList: the cell shift itself
+            return None, np.eye(3, dtype=np.int64)
+        # ase PrimitiveNeighborList: the image shifts in the Minkowski-reduced
+        # basis of the wrapped positions; the reduction depends on the cell
+        # only, so it is kept until the cell or pbc change
         from ase.geometry import minkowski_reduce, wrap_positions
-        rcell, op = minkowski_reduce(cellobj, pbc)
+        key = (cellobj.array.tobytes(), np.asarray(pbc).tobytes())
+        if self._reduced[0] != key:
+            rcell, op = minkowski_reduce(cellobj, pbc)
+            self._reduced = key, rcell, np.rint(np.linalg.inv(op)).astype(np.int64)
+        _, rcell, basis = self._reduced
         wrapped = wrap_positions(positions, rcell, pbc=pbc, eps=0)
-        offsets = cellobj.scaled_positions(wrapped - positions)
-        offsets = offsets.round().astype(int)
-        inv = np.rint(np.linalg.inv(op)).astype(int)
-        nvec = (S - offsets[j] + offsets[i]) @ inv
-        n1, n2, n3 = nvec.T
-        return ((n1 > 0) | ((n1 == 0) & (n2 > 0))
-                | ((n1 == 0) & (n2 == 0) & (n3 > 0))
-                | ((n1 == 0) & (n2 == 0) & (n3 == 0) & (j >= i)))
+        offsets = cellobj.scaled_positions(wrapped - positions).round().astype(np.int64)
+        return offsets, basis
 
     # -- access -------------------------------------------------------------
     def get_neighbors(self, a):

@@ -112,7 +112,7 @@ class PairList:
     def gather_check(self, positions, cell, ref=None, M=None):
         """``(X, umax)``: :meth:`positions`, and in the same pass the
         largest displacement beyond the affine cell map ``M`` since ``ref``
-        (positions in row order when the list was built), Å; NaN if any
+        (this list's ``X`` when it was built), Å; NaN if any
         position is NaN; 0 without ``ref``.  One read of the positions per
         MD call for the gather and the list-validity test."""
         n = len(self.order)
@@ -259,7 +259,9 @@ def _orientation(orient, n):
 def _gather_rows(positions, order, images, cell, ref, M, X, worst):
     """Gather ``X[t] = x[order[t]] + images[t] @ cell`` and, when ``ref``
     has rows, how far each atom moved beyond the affine map ``M`` of the
-    cell since ``ref`` (row order; ``M`` the identity in NVE): ``worst``
+    cell since ``ref`` (the ``X`` of then: the images are the list's, and
+    ``images @ cell_then @ M = images @ cell``; ``M`` the identity in
+    NVE): ``worst``
     gets the largest displacement of each of its chunks of rows (Å), NaN
     if any is NaN.  A max does not depend on the chunking."""
     n = order.shape[0]
@@ -274,8 +276,8 @@ def _gather_rows(positions, order, images, cell, ref, M, X, worst):
             m2 = images[t, 2]
             s = 0.0
             for c in range(3):
-                x = positions[a, c]
-                X[t, c] = x + (m0 * cell[0, c] + m1 * cell[1, c] + m2 * cell[2, c])
+                x = positions[a, c] + (m0 * cell[0, c] + m1 * cell[1, c] + m2 * cell[2, c])
+                X[t, c] = x
                 if check:
                     d = x - (ref[t, 0] * M[0, c] + ref[t, 1] * M[1, c]
                              + ref[t, 2] * M[2, c])

@@ -228,9 +228,8 @@ class VerletList:
         limit = ABSURD_LISTS * self.rlist + 10.0 * float(np.linalg.norm(cell, axis=1).sum())
         if not umax > limit:  # NaN too: the grid update names those atoms
             return
-        order = self.pairs.order
-        u = np.linalg.norm(positions[order] - self._ref @ M, axis=1)
-        bad = np.sort(order[u > limit])
+        u = np.linalg.norm(self.pairs.positions(positions, cell) - self._ref @ M, axis=1)
+        bad = np.sort(self.pairs.order[u > limit])
         raise ValueError(
             f"positions: atom(s) {bad[:10].tolist()}{' ...' if len(bad) > 10 else ''} "
             f"moved up to {u.max():.3g} Å since the pair list was built (limit "
@@ -274,11 +273,10 @@ class VerletList:
             pl = half_list(index, rat, cut=self.rlist, self_interaction=self.self_interaction,
                            pairs_per_atom=hint, reuse=old, split=split)
         del old, index
-        # the validity test's reference, and the kernel's positions through
-        # the per-call gather (so that it is compiled or loaded here, not in
-        # the first call after)
-        self._ref = np.ascontiguousarray(positions[pl.order])
-        self.X = pl.positions(positions, cell)
+        # the kernel's positions through the per-call gather (compiled or
+        # loaded here, not in the first call after); they are the validity
+        # test's reference too (never written: each call gathers anew)
+        self.X = self._ref = pl.positions(positions, cell)
         self.svec = shift_vectors(pl.shifts, cell)
         if self.width is not None:
             pl.partition(self.X, self.svec, self.cutoff)  # the scan ordered its own

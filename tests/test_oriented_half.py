@@ -6,7 +6,7 @@ Two rules, those of ASE's two primitives' ``bothways=False`` halves:
 NewPrimitiveNeighborList's (S lexicographically positive, or S == 0 and
 i <= j: offsets 0, basis the identity) and PrimitiveNeighborList's (the
 image shift n in the Minkowski-reduced basis of the wrapped positions,
-computed here as ``ase_mlg.neighborlist._MLGPrimitive._half_mask`` does).
+computed here as ``ase_mlg.neighborlist._MLGPrimitive._orientation`` does).
 """
 
 import numpy as np
