@@ -207,21 +207,23 @@ class VerletList:
         """Positions in row order if the list still holds every pair within
         the cutoff (see :meth:`update`), else None."""
         ref_cell = self._ref_cell
-        if np.array_equal(cell, ref_cell):
-            M, smin = _EYE, 1.0
+        fixed = np.array_equal(cell, ref_cell)
+        if fixed:
+            M = _EYE
         elif callable(self.template):
             return None  # the policy re-checks its width on a new cell
         elif abs(np.linalg.det(ref_cell)) < 1e-12 * max(np.abs(ref_cell).max(), 1.0) ** 3:
             return None
         else:
-            M = np.linalg.solve(ref_cell, cell)
-            smin = float(np.linalg.svd(M, compute_uv=False).min())
-        X, umax = self.pairs.gather_check(positions, cell, self._ref, np.ascontiguousarray(M))
+            M = np.ascontiguousarray(np.linalg.solve(ref_cell, cell))
+        X, umax = self.pairs.gather_check(positions, cell, self._ref, M)
+        # an atom sent flying is an error to name, not a reason to rebuild
         self._check_displacement(positions, M, umax, cell)
         if self.skin == 0.0 or self.cutoff is None:
             return None
-        if M is _EYE:
+        if fixed:
             return X if umax < 0.5 * self.skin else None
+        smin = float(np.linalg.svd(M, compute_uv=False).min())
         return X if smin * self.rlist - 2.0 * umax > self.cutoff else None
 
     def _check_displacement(self, positions, M, umax, cell):
