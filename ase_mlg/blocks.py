@@ -7,12 +7,33 @@ these boxes are monotone along each axis, which is what lets the query
 bisect them (the proof is in :mod:`ase_mlg.query` and docs/design.md §6).
 """
 
+from collections import namedtuple
+
 import numpy as np
 from numba import njit
 
 from .parallel import run_chunks, threads_for
 
-__all__ = ["BlockIndex", "block_for_radius"]
+__all__ = ["BlockIndex", "Blocks", "block_for_radius"]
+
+#: The arrays of a :class:`BlockIndex` that the query kernels read, as one
+#: argument (the attributes of the index of the same names): ``nb`` blocks
+#: per axis, ``bsz`` slots per block; per slot (block-major order)
+#: ``slot_atom`` (-1: hole or padding), ``slot_rank``, ``P`` (3, nslot),
+#: ``G`` (3, nslot), ``MS`` (nslot, 3); the boxes ``BB``, ``R2``, ``S1`` of
+#: blocks, rows and slabs and the global box ``glob``; ``natom_blk`` atoms per
+#: block; the grid's ``positions``, ``cell`` and ``periods``.
+Blocks = namedtuple("Blocks", "nb bsz slot_atom slot_rank P G MS BB R2 S1 glob "
+                              "natom_blk positions cell periods")
+
+# What the gather reads: the grid's sites and their stored coordinates
+# (site order), every atom's grid coordinates (atom order), the positions,
+# cell, periods and the grid shape.
+_Sites = namedtuple("_Sites", "sites coordinates atom_coordinates positions cell "
+                              "periods shape")
+
+# What the gather fills, as :func:`_slots` allocates it.
+_Slots = namedtuple("_Slots", "slot_atom P G MS BB natom_blk")
 
 
 @njit(cache=True)
@@ -33,18 +54,35 @@ def _slots(nslot, nblk):
 
 
 @njit(cache=True, nogil=True)
-def _gather(I0, I1, sites, coords, g, positions, cell, periods, shape, bs, nb,
-            slot_atom, P, G, MS, BB, natom_blk):
+def _gather(I0, I1, src, bs, nb, out):
     """Fill the slots and block boxes of slabs [I0, I1) (block-major order).
 
-    ``slot_atom`` (-1: hole or padding), ``P`` (3, nslot): Cartesian
-    position of the image that matches the stored coordinate (+inf for
-    holes), ``G`` (3, nslot) stored grid coordinates, ``MS`` (nslot, 3)
-    integer image of the stored coordinate, ``BB`` (nblk, 6) block boxes
-    (lo0, lo1, lo2, hi0, hi1, hi2), ``natom_blk`` (nblk,).  A slab's sites
-    fill only its own slots and blocks, so slabs run on threads.  Returns
-    the largest deviation of a stored coordinate from an exact image.
+    Parameters
+    ----------
+    I0, I1 : int
+        Slabs (blocks along axis 0) to fill.
+    src : _Sites
+        The grid's sites and coordinates.
+    bs, nb : int64 arrays (3,)
+        Sites per block and blocks per axis.
+    out : _Slots
+        ``slot_atom`` (-1: hole or padding), ``P`` (3, nslot): Cartesian
+        position of the image that matches the stored coordinate (+inf for
+        holes), ``G`` (3, nslot) stored grid coordinates, ``MS`` (nslot, 3)
+        integer image of the stored coordinate, ``BB`` (nblk, 6) block
+        boxes (lo0, lo1, lo2, hi0, hi1, hi2), ``natom_blk`` (nblk,).  A
+        slab's sites fill only its own slots and blocks, so slabs run on
+        threads.
+
+    Returns
+    -------
+    float
+        The largest deviation of a stored coordinate from an exact image.
     """
+    sites, coords, g = src.sites, src.coordinates, src.atom_coordinates
+    positions, cell, periods, shape = src.positions, src.cell, src.periods, src.shape
+    slot_atom, P, G, MS = out.slot_atom, out.P, out.G, out.MS
+    BB, natom_blk = out.BB, out.natom_blk
     nx, ny, nz = shape[0], shape[1], shape[2]
     bx, by, bz = bs[0], bs[1], bs[2]
     nby, nbz = nb[1], nb[2]
@@ -139,6 +177,18 @@ class BlockIndex:
 
     Built in O(N) from the grid's current state; rebuild it (cheap) after
     every ``grid.update``.
+
+    Attributes
+    ----------
+    blocks : Blocks or None
+        The arrays the query kernels read, in one argument (None for an
+        empty grid); each is also the attribute of the same name.
+    order : int64 array (N,)
+        The atom of every rank (atoms numbered along the blocks).
+    dev : float
+        Largest deviation of a stored coordinate from an exact image.
+    scale : float
+        Magnitude of the coordinates, for the query's relative padding.
     """
 
     def __init__(self, grid, block=2):
@@ -150,7 +200,6 @@ class BlockIndex:
         nb = (shape + bs - 1) // bs
         view = grid.view()
         self.grid = grid
-        self.shape = shape
         self.bs = bs
         self.nb = nb
         self.positions = grid.positions
@@ -161,32 +210,35 @@ class BlockIndex:
         if n:
             g = np.ascontiguousarray(box.fractional(view.positions) * box.heights)
             nslab = int(nb[0])
-            arrays = _slots(int(np.prod(nb) * np.prod(bs)), int(np.prod(nb)))
-            (self.slot_atom, self.P, self.G, self.MS, self.BB,
-             self.natom_blk) = arrays
+            bsz = int(np.prod(bs))
+            slots = _Slots(*_slots(int(np.prod(nb)) * bsz, int(np.prod(nb))))
+            src = _Sites(view.sites, view.coordinates, g, grid.positions, self.cell,
+                         self.periods, shape)
             nth = threads_for("atoms", n)
             nchunk = min(nslab, 1 if nth == 1 else 4 * nth)
             cuts = np.linspace(0, nslab, nchunk + 1).astype(np.int64)
-            devs = run_chunks(_gather, lambda ch: (
-                cuts[ch], cuts[ch + 1], view.sites, view.coordinates, g,
-                grid.positions, self.cell, self.periods, shape, bs, nb) + arrays,
-                nchunk, nth)
+            devs = run_chunks(_gather, lambda ch: (cuts[ch], cuts[ch + 1], src, bs, nb, slots),
+                              nchunk, nth)
             self.dev = max(devs)
+            (self.slot_atom, self.P, self.G, self.MS, self.BB,
+             self.natom_blk) = slots
             self.R2, self.S1, self.glob = _boxes(self.BB, nb)
             # ranks: atoms numbered along the blocks (holes skipped)
             filled = self.slot_atom >= 0
             self.order = self.slot_atom[filled]
             self.slot_rank = np.full(len(filled), -1, np.int32)
             self.slot_rank[filled] = np.arange(n, dtype=np.int32)
-            self.volume = float(abs(np.linalg.det(self.cell)))
             scale = max(1.0, float(np.abs(self.glob).max()),
                         float(np.abs(grid.positions).max()),
                         float(np.abs(self.cell).sum()))
+            self.blocks = Blocks(nb, bsz, self.slot_atom, self.slot_rank, self.P, self.G,
+                                 self.MS, self.BB, self.R2, self.S1, self.glob,
+                                 self.natom_blk, self.positions, self.cell, self.periods)
         else:
             scale = 1.0
             self.dev = 0.0
             self.order = np.zeros(0, np.int64)
-            self.volume = 0.0
+            self.blocks = None
         self.scale = scale
 
 

@@ -67,6 +67,7 @@ it), in a fixed number of row groups with a cursor per group and atom, so
 that the output too is the same for any number of threads.
 """
 
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
@@ -79,6 +80,30 @@ __all__ = ["half_list", "pair_list", "find_pairs", "exact_pairs", "CUT_SCALAR",
            "CUT_RADII", "CUT_TABLE"]
 
 CUT_SCALAR, CUT_RADII, CUT_TABLE = 0, 1, 2
+
+# The scan's arguments besides the block index (:attr:`BlockIndex.blocks`),
+# one structure per role; the kernels read their fields into locals.
+
+# How far the scan looks: the per-atom query ``radius`` (atom order, an
+# upper bound of every cutoff of the atom), the grid-space box ``pad`` and
+# the ``tolerance`` within which the fast distance does not decide.
+_Reach = namedtuple("_Reach", "radius pad tolerance")
+
+# The pair cutoff: ``mode`` (CUT_SCALAR, CUT_RADII, CUT_TABLE) selects the
+# scalar ``cutoff``, ``radii[t] + radii[u]`` or ``table[types[t],
+# types[u]]``; ``radii``/``types`` are per slot (block order), empty where
+# the mode ignores them.  ``self_interaction`` keeps (i, i, S=0).
+_PairCutoff = namedtuple("_PairCutoff", "mode cutoff radii types table self_interaction")
+
+# How a kept pair is written: its image ``m`` as the code ``((m0 -
+# shift_lo[0]) * shift_dim[1] + m1 - shift_lo[1]) * shift_dim[2] + m2 -
+# shift_lo[2]``; with ``split2 >= 0`` each row holds its pairs with squared
+# distance <= split2 first.
+_RowFormat = namedtuple("_RowFormat", "shift_lo shift_dim split2")
+
+# Where the pairs go: ``nbr``/``code`` from ``start`` on, at most ``cap``
+# of them; ``rowcount`` (by rank) gets every row's length.
+_Room = namedtuple("_Room", "nbr code start cap rowcount")
 
 
 # --------------------------------------------------------------------------
@@ -185,15 +210,23 @@ def _slot_values(slot_atom, radii, types, mode):
 
 
 @njit(cache=True)
-def _prepare(A, cand, cf, qlo, qhi, nb, bsz, slot_atom, BB, R2, S1, glob,
-             periods, cell, pad, rat, half):
-    """Candidate (block, image) list of query block ``A``: every block whose
-    box meets A's box grown by the largest query radius of its atoms, for
-    every periodic image ``m`` that can reach the global range of stored
-    coordinates.  ``cf`` gets each candidate's box shifted to its image
-    (0:6) and the Cartesian image shift (6:9).  With ``half``, candidates
-    that only hold mirrors of pairs kept from the other side are dropped
-    (block < A, or block == A with a negative image)."""
+def _prepare(A, blocks, reach, cand, cf, qlo, qhi):
+    """Candidate (block, image) list of query block ``A``: every block
+    ``B >= A`` whose box meets A's box grown by the largest query radius of
+    its atoms, for every periodic image ``m`` that can reach the global
+    range of stored coordinates, but for those of ``A`` itself with a
+    negative image (they only hold mirrors of pairs kept from the other
+    side).
+
+    ``cand`` (rows of block, m0, m1, m2) and ``cf`` (each candidate's box
+    shifted to its image at 0:6, the Cartesian image shift at 6:9) are the
+    caller's buffers, ``qlo``/``qhi`` scratch (3,).  Returns ``(cand, cf,
+    ncand)``: the buffers, grown when they were short, and the count.
+    """
+    nb, bsz, slot_atom = blocks.nb, blocks.bsz, blocks.slot_atom
+    BB, R2, S1, glob = blocks.BB, blocks.R2, blocks.S1, blocks.glob
+    periods, cell = blocks.periods, blocks.cell
+    rat, pad = reach.radius, reach.pad
     # query radius of the block
     tA0 = A * bsz
     RA = 0.0
@@ -229,8 +262,7 @@ def _prepare(A, cand, cf, qlo, qhi, nb, bsz, slot_atom, BB, R2, S1, glob,
                 qlo[2] = BB[A, 2] - RA - m2 * periods[2]
                 qhi[2] = BB[A, 5] + RA - m2 * periods[2]
                 cand, ncand = _block_candidates(
-                    cand, qlo, qhi, nb, S1, R2, BB, m0, m1, m2, ncand,
-                    A if half else 0)
+                    cand, qlo, qhi, nb, S1, R2, BB, m0, m1, m2, ncand, A)
     if cf.shape[0] < ncand:
         cf = np.empty((cand.shape[0], 9))
     # per candidate: its box shifted to the image, and the Cartesian
@@ -241,12 +273,9 @@ def _prepare(A, cand, cf, qlo, qhi, nb, bsz, slot_atom, BB, R2, S1, glob,
         m0 = cand[c, 1]
         m1 = cand[c, 2]
         m2 = cand[c, 3]
-        if half:
-            # mirrors of pairs kept from the other side
-            if B < A:
-                continue
-            if B == A and (m0 < 0 or (m0 == 0 and (m1 < 0 or (m1 == 0 and m2 < 0)))):
-                continue
+        # mirrors of pairs kept from the other side
+        if B == A and (m0 < 0 or (m0 == 0 and (m1 < 0 or (m1 == 0 and m2 < 0)))):
+            continue
         cand[nkeep, 0] = B
         cand[nkeep, 1] = m0
         cand[nkeep, 2] = m1
@@ -264,36 +293,62 @@ def _prepare(A, cand, cf, qlo, qhi, nb, bsz, slot_atom, BB, R2, S1, glob,
 
 
 @njit(cache=True, nogil=True)
-def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, pos, G, MS, BB, R2, S1,
-          glob, natom_blk, periods, cell, pad, ftol, rat, mode, cut, rs, ts,
-          table, self_interaction, slo, sdim, split2, out_j, out_c, lo, cap,
-          rowcount):
+def _scan(b0, b1, blocks, reach, cutoff, fmt, room):
     """Half scan of blocks ``[b0, b1)``: every unordered pair
     {(i, j, S), (j, i, -S)} with d < cutoff(i, j) once.
 
-    Candidates are tested on positions gathered in block order (``P``, in
-    the frame of the stored coordinates); a pair whose fast distance is
-    farther than ``ftol`` from its cutoff is decided by it, the others on
-    ``D = x[j] - x[i] + S @ cell`` from the original positions ``pos``, as
-    ASE computes it.  Each pair is kept from the side whose (block, image,
-    slot) comes first: candidate blocks ``B >= A``, and for ``B == A`` the
-    non-negative images and slots ``u >= t``.
+    Parameters
+    ----------
+    b0, b1 : int
+        Query blocks.
+    blocks : Blocks
+        The block index (:attr:`BlockIndex.blocks`).
+    reach : _Reach
+        Query radii, box padding and the fast distance's tolerance.
+    cutoff : _PairCutoff
+        The pair cutoff.
+    fmt : _RowFormat
+        Image codes and the row split.
+    room : _Room
+        Output room and row lengths.
+
+    Returns
+    -------
+    end, count : int
+        Blocks ``[b0, end)`` are done, with ``count`` pairs written.
+        ``end < b1`` when block ``end`` ran out of room: nothing beyond
+        ``room.cap`` is written, and the caller scans on from block ``end``
+        into new room (a short guess costs one block again, not the chunk).
+
+    Notes
+    -----
+    Candidates are tested on positions gathered in block order
+    (``blocks.P``, in the frame of the stored coordinates); a pair whose
+    fast distance is farther than ``reach.tolerance`` from its cutoff is
+    decided by it, the others on ``D = x[j] - x[i] + S @ cell`` from the
+    original positions ``blocks.positions``, as ASE computes it.  Each pair
+    is kept from the side whose (block, image, slot) comes first: candidate
+    blocks ``B >= A``, and for ``B == A`` the non-negative images and slots
+    ``u >= t``.
 
     Kept pairs are written in row order (the row is the rank of slot ``t``)
-    as the rank of ``u`` and the code of the image ``m`` (``((m0 - slo0) *
-    sdim1 + m1 - slo1) * sdim2 + m2 - slo2``; the cell shift of the pair is
-    ``S = m + MS[u] - MS[t]``) at ``out_j/out_c[lo:lo + cap]``;
-    ``rowcount[rank of t]`` gets the row length.  With ``split2 >= 0`` each
+    as the rank of ``u`` and the code of the image ``m`` (the cell shift of
+    the pair is ``S = m + MS[u] - MS[t]``).  With ``fmt.split2 >= 0`` each
     row holds its pairs with (fast) squared distance ``<= split2`` first,
     then the others, each group in scan order: the force loop's cutoff
     branch is then predicted (this replaces a second pass over the list,
-    :meth:`PairList.partition`, 17% of a build).  Returns ``(end,
-    count)``: blocks ``[b0, end)`` are done, with ``count`` pairs written.
-    ``end < b1`` when block ``end`` ran out of room: nothing beyond ``cap``
-    is written, and the caller scans on from block ``end`` into new room (a
-    short guess costs one block again, not the chunk).  Runs without the
-    GIL, one call per chunk of blocks on Python threads.
+    :meth:`PairList.partition`, 17% of a build).  Runs without the GIL,
+    one call per chunk of blocks on Python threads.
     """
+    bsz, slot_atom, slot_rank = blocks.bsz, blocks.slot_atom, blocks.slot_rank
+    P, pos, G, MS = blocks.P, blocks.positions, blocks.G, blocks.MS
+    natom_blk, cell = blocks.natom_blk, blocks.cell
+    rat, pad, ftol = reach.radius, reach.pad, reach.tolerance
+    mode, cut, self_interaction = cutoff.mode, cutoff.cutoff, cutoff.self_interaction
+    rs, ts, table = cutoff.radii, cutoff.types, cutoff.table
+    slo, sdim, split2 = fmt.shift_lo, fmt.shift_dim, fmt.split2
+    out_j, out_c, lo, cap = room.nbr, room.code, room.start, room.cap
+    rowcount = room.rowcount
     total = 0
     cand = np.empty((64, 4), dtype=np.int64)
     cf = np.empty((64, 9))
@@ -307,9 +362,7 @@ def _scan(b0, b1, nb, bsz, slot_atom, slot_rank, P, pos, G, MS, BB, R2, S1,
         if natom_blk[A] == 0:
             continue
         before = total
-        cand, cf, ncand = _prepare(A, cand, cf, qlo, qhi, nb, bsz, slot_atom,
-                                   BB, R2, S1, glob, periods, cell, pad, rat,
-                                   True)
+        cand, cf, ncand = _prepare(A, blocks, reach, cand, cf, qlo, qhi)
         tA0 = A * bsz
         for t in range(tA0, tA0 + bsz):
             a = slot_atom[t]
@@ -437,7 +490,6 @@ def _image_bounds(index, rmax, pad):
 
 
 MAX_IMAGES = 1e7  # periodic images per query: 2 rc / h + 1 per axis
-NGROUP = 8  # row groups of full lists: fixed, so the output never depends on threads
 
 
 def _compact_in_place(nbr, code, segs, lo, offs):
@@ -496,16 +548,20 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     """
     grid = index.grid
     n = grid.natoms
+    mode = int(mode)
     rat = np.ascontiguousarray(rat, dtype=np.float64)
-    radii = np.zeros(n) if radii is None else np.ascontiguousarray(radii, dtype=np.float64)
-    types = np.zeros(n, np.int64) if types is None else np.ascontiguousarray(types, dtype=np.int64)
+    # a mode reads only its own per-atom values: none for the others
+    radii = (np.zeros(n if mode == CUT_RADII else 0) if radii is None
+             else np.ascontiguousarray(radii, dtype=np.float64))
+    types = (np.zeros(n if mode == CUT_TABLE else 0, np.int64) if types is None
+             else np.ascontiguousarray(types, dtype=np.int64))
     table = np.zeros((1, 1)) if table is None else np.ascontiguousarray(table, dtype=np.float64)
     if n == 0:
         sdim, shifts, dtype = _shift_codes(np.zeros(3, np.int64), np.zeros(3, np.int64))
         return PairList(np.zeros(0, np.int64), np.zeros(1, np.int64),
                         np.zeros(0, np.int32), np.zeros(0, dtype), shifts,
                         np.zeros((0, 3), np.int64), 0)
-    rs, ts = _slot_values(index.slot_atom, radii, types, int(mode))
+    rs, ts = _slot_values(index.slot_atom, radii, types, mode)
     rmax = float(rat.max())
     # every periodic image within rmax is visited: refuse a cutoff that
     # would need more images than any computer can list, instead of hanging
@@ -525,7 +581,6 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     sdim, shifts, dtype = _shift_codes(slo, shi)
     zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
     nblk = int(np.prod(index.nb))
-    bsz = int(np.prod(index.bs))
     nth = threads_for("atoms", n)
     # more chunks than threads balances dense and empty regions; the list
     # does not depend on the chunking (rows come out in rank order)
@@ -549,11 +604,10 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
         pairs_per_atom = min(float(pairs_per_atom), 0.5 * n * (1 + 8 * 27) + 1)
         caps = (margin * pairs_per_atom * atoms_in).astype(np.int64) + 64
     rowcount = np.zeros(n, np.int64)
-    args = (index.nb, bsz, index.slot_atom, index.slot_rank, index.P, index.positions,
-            index.G, index.MS, index.BB, index.R2, index.S1, index.glob,
-            index.natom_blk, index.periods, index.cell, pad, ftol, rat,
-            int(mode), float(cut), rs, ts, table, bool(self_interaction),
-            slo, sdim, -1.0 if split is None else float(split) ** 2)
+    blocks = index.blocks
+    reach = _Reach(rat, pad, ftol)
+    cutoff = _PairCutoff(mode, float(cut), rs, ts, table, bool(self_interaction))
+    fmt = _RowFormat(slo, sdim, -1.0 if split is None else float(split) ** 2)
     lo = np.zeros(nchunk + 1, np.int64)
     np.cumsum(caps, out=lo[1:])
     total_cap = int(lo[-1])
@@ -579,7 +633,8 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
         pieces = []
         total = 0
         while True:
-            b, k = _scan(b, end_b, *args, buf_j, buf_c, at, room, rowcount)
+            b, k = _scan(b, end_b, blocks, reach, cutoff, fmt,
+                         _Room(buf_j, buf_c, at, room, rowcount))
             pieces.append((buf_j, buf_c, at, k))
             total += k
             if b == end_b:
@@ -644,7 +699,7 @@ def _rows_from_pairs(rank_i, rank_j, mcode, n, nbr, code, rowptr):
 def pair_list(index, i, j, S):
     """A :class:`PairList` in the grid order of ``index`` from a half list
     of atom pairs with cell shifts S (e.g. Boris's template,
-    :func:`ase_mlg.grid.template_pairs`)."""
+    :func:`ase_mlg.template.template_pairs`)."""
     n = index.grid.natoms
     rank = np.empty(n, np.int64)
     rank[index.order] = np.arange(n)

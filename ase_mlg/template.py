@@ -9,6 +9,8 @@ bounds.  This is a query on a grid, like :mod:`ase_mlg.query`, and reads the
 grid through its read-only :meth:`~ase_mlg.grid.MLG.view`.
 """
 
+from collections import namedtuple
+
 import numpy as np
 from numba import prange
 
@@ -16,6 +18,17 @@ from .parallel import serial_and_parallel, use_threads
 
 __all__ = ["half_template", "template_pairs"]
 
+# The grid as the template walk reads it: ``sites`` (flat, -1 for holes),
+# the grid ``shape``, the periodic axes ``pbc``, the ``cell``, and the
+# Cartesian ``positions`` and ``fractional`` coordinates of the atom of
+# every site (site order: the walk then reads memory near the site instead
+# of jumping by atom index).
+_SiteFrame = namedtuple("_SiteFrame", "sites shape pbc cell positions fractional")
+
+# The walk's output: ``counts`` (pairs per site, the counting run), and the
+# pairs ``i``, ``j``, ``S``, ``D`` written from ``start[s]`` on (the filling
+# run).
+_TemplateOut = namedtuple("_TemplateOut", "counts start i j S D")
 
 
 def half_template(width, shape, pbc):
@@ -54,15 +67,31 @@ def half_template(width, shape, pbc):
             np.ascontiguousarray((kd == kn)[keep]))
 
 
-def _template_scan(sites, shape, pbc, offsets, selfinv, sp, sf,
-                   cell, cutoff, counts, out_i, out_j, out_S, out_D, start,
-                   fill):
-    """``sp``/``sf``: Cartesian/fractional positions in *site* order, so the
-    template walk reads memory near the site instead of jumping by atom
-    index.  For every site, walk the half template and keep pairs with d < cutoff
-    (minimum image on periodic axes).  Run twice: ``fill=False`` counts pairs
-    per site, ``fill=True`` writes them at ``start[s]``; the output order is
-    fixed by the site order, so the parallel and serial runs agree."""
+def _template_scan(frame, offsets, selfinv, cutoff, out, fill):
+    """For every site, walk the half template and keep pairs with d < cutoff
+    (minimum image on periodic axes).
+
+    Parameters
+    ----------
+    frame : _SiteFrame
+        The grid, in site order.
+    offsets, selfinv : arrays
+        The half template (:func:`half_template`).
+    cutoff : float
+        Cutoff radius (Å).
+    out : _TemplateOut
+        Where the counts or the pairs go.
+    fill : bool
+        False: count the pairs of every site into ``out.counts``; True:
+        write them from ``out.start[s]`` on.  The kernel runs once each
+        way; the output order is fixed by the site order, so the parallel
+        and serial runs agree.
+    """
+    # locals: the parallel lowering cannot read tuple fields inside prange
+    sites, shape, pbc, cell = frame.sites, frame.shape, frame.pbc, frame.cell
+    sp, sf = frame.positions, frame.fractional
+    counts, start = out.counts, out.start
+    out_i, out_j, out_S, out_D = out.i, out.j, out.S, out.D
     nx, ny, nz = shape[0], shape[1], shape[2]
     rc2 = cutoff * cutoff
     for s in prange(sites.size):
@@ -170,9 +199,9 @@ def template_pairs(grid, width, cutoff):
     e_i = np.empty(0, np.int64)
     e_S = np.empty((0, 3), np.int64)
     e_D = np.empty((0, 3))
-    args = (sites, shape, pbc, offsets, selfinv, sp, sf, view.box.cell, cutoff)
+    frame = _SiteFrame(sites, shape, pbc, view.box.cell, sp, sf)
     scan = _template_scan_parallel if use_threads("sites", sites.size) else _template_scan_serial
-    scan(*args, counts, e_i, e_i, e_S, e_D, counts, False)
+    scan(frame, offsets, selfinv, cutoff, _TemplateOut(counts, counts, e_i, e_i, e_S, e_D), False)
     start = np.zeros(sites.size, dtype=np.int64)
     np.cumsum(counts[:-1], out=start[1:])
     m = int(counts.sum())
@@ -180,5 +209,5 @@ def template_pairs(grid, width, cutoff):
     j = np.empty(m, np.int64)
     S = np.empty((m, 3), np.int64)
     D = np.empty((m, 3))
-    scan(*args, counts, i, j, S, D, start, True)
+    scan(frame, offsets, selfinv, cutoff, _TemplateOut(counts, start, i, j, S, D), True)
     return i, j, S, D
