@@ -166,20 +166,31 @@ def _split(g, perm, sites, coords, ny, nz, b, f, method, out_b, out_f, k):
     return 2
 
 
+# What every split reads and writes: the atoms' grid coordinates (atom
+# order), the atom permutation it reorders, the flat ``sites`` and their
+# ``coordinates`` it fills, the grid's ``ny``, ``nz`` and the axis rule.
+_Construction = namedtuple("_Construction", "atom_coordinates perm sites coordinates "
+                                            "ny nz method")
+
+
 @njit(cache=True, nogil=True)
-def _split_boxes(g, perm, sites, coords, ny, nz, ib, fb, k0, k1, method,
-                 out_b, out_f, nchild):
-    """Split boxes ``k0:k1`` of (ib, fb) once: children of box k at rows
-    2k, 2k + 1 of (out_b, out_f), their number in ``nchild[k]``."""
+def _split_boxes(work, ib, fb, k0, k1, out_b, out_f, nchild):
+    """Split boxes ``k0:k1`` of (ib, fb) once (``work``: a
+    ``_Construction``): children of box k at rows 2k, 2k + 1 of (out_b,
+    out_f), their number in ``nchild[k]``."""
+    g, perm, sites, coords = work.atom_coordinates, work.perm, work.sites, work.coordinates
+    ny, nz, method = work.ny, work.nz, work.method
     for k in range(k0, k1):
         nchild[k] = _split(g, perm, sites, coords, ny, nz, ib[k].copy(),
                            fb[k].copy(), method, out_b, out_f, 2 * k)
 
 
 @njit(cache=True, nogil=True)
-def _subtrees(g, perm, sites, coords, ny, nz, ib, fb, k0, k1, method):
+def _subtrees(work, ib, fb, k0, k1):
     """Split boxes ``k0:k1`` of (ib, fb) down to single sites (depth first,
-    an explicit stack)."""
+    an explicit stack; ``work``: a ``_Construction``)."""
+    g, perm, sites, coords = work.atom_coordinates, work.perm, work.sites, work.coordinates
+    ny, nz, method = work.ny, work.nz, work.method
     cap = 256
     ibox = np.empty((cap, 8), dtype=np.int64)
     fbox = np.empty((cap, 6))
@@ -213,19 +224,18 @@ def _build(g, nx, ny, nz, lo0, hi0, method):
     ib = np.array([[0, 0, 0, nx, ny, nz, 0, n]], dtype=np.int64)
     fb = np.ascontiguousarray(np.concatenate([lo0, hi0])[None, :], dtype=np.float64)
     nth = threads_for("atoms", n)
-    args = (g, perm, sites, coords, ny, nz)
+    work = _Construction(g, perm, sites, coords, ny, nz, method)
     while nth > 1 and 0 < len(ib) < 4 * nth:
         out_b = np.empty((2 * len(ib), 8), dtype=np.int64)
         out_f = np.empty((2 * len(ib), 6))
         nchild = np.zeros(len(ib), dtype=np.int64)
-        run_chunks(_split_boxes, lambda k: args + (ib, fb, k, k + 1, method, out_b,
-                                                   out_f, nchild), len(ib), nth)
+        run_chunks(_split_boxes, lambda k: (work, ib, fb, k, k + 1, out_b, out_f, nchild),
+                   len(ib), nth)
         keep = np.repeat(nchild == 2, 2)
         ib, fb = out_b[keep], out_f[keep]
     nbox = len(ib)
     if nbox:
-        run_chunks(_subtrees, lambda k: args + (ib, fb, k, k + 1, method),
-                   nbox, nth)
+        run_chunks(_subtrees, lambda k: (work, ib, fb, k, k + 1), nbox, nth)
     return sites, coords
 
 
@@ -310,6 +320,13 @@ class MLG:
     stats : dict
         Cumulative ``updates``, ``sweeps``, ``swaps``, ``rebuilds`` and the
         ``last`` update's record.
+    version : int
+        Changes whenever the grid moves (every :meth:`update` and
+        :meth:`rebuild`): what a list built on the grid compares.
+    generation : int
+        Changes whenever the order is constructed anew (construction,
+        :meth:`rebuild`, a rebuild inside :meth:`update`), not when swap
+        sweeps repair it.
     """
 
     def __init__(self, positions, cell=None, pbc=False, method="kd",
@@ -320,13 +337,6 @@ class MLG:
         sweep_cap = _int_arg("sweep_cap", sweep_cap, 1)
         monitor_every = _int_arg("monitor_every", monitor_every, 0)
         try:
-    version : int
-        Changes whenever the grid moves (every :meth:`update` and
-        :meth:`rebuild`): what a list built on the grid compares.
-    generation : int
-        Changes whenever the order is constructed anew (construction,
-        :meth:`rebuild`, a rebuild inside :meth:`update`), not when swap
-        sweeps repair it.
             max_phase_lag = float(max_phase_lag)
         except (TypeError, ValueError):
             raise TypeError(f"max_phase_lag: expected a number, got {max_phase_lag!r}") from None
@@ -340,6 +350,7 @@ class MLG:
         self._forced_shape = None if shape is None else tuple(int(s) for s in shape)
         self.stats = {"updates": 0, "sweeps": 0, "swaps": 0, "rebuilds": 0,
                       "last": None}
+        self.version = self.generation = -1
         self._build(as_positions(positions))
 
     @classmethod
@@ -350,7 +361,6 @@ class MLG:
     # -- construction -----------------------------------------------------
     def _grid_coordinates(self, positions):
         frac = self.box.fractional(positions)
-        self.version = self.generation = -1
         _check_fractional(frac, self.box.pbc)
         self._origin = wrap_origins(frac, self.box.pbc)
         for a in range(3):
@@ -393,6 +403,8 @@ class MLG:
         self._sites = sites
         self._coords = coords
         self._since_monitor = 0
+        self.version += 1
+        self.generation += 1
 
     def rebuild(self, positions=None):
         """Construct the grid anew (O(N log N))."""
@@ -403,8 +415,6 @@ class MLG:
     # -- public views -------------------------------------------------------
     def view(self):
         """Read-only views of the grid's own arrays (no copies), for the
-        self.version += 1
-        self.generation += 1
         queries built on it.
 
         Returns
@@ -542,6 +552,8 @@ class MLG:
         else:
             self.box = box
             self._periods = periods
+        if not rec["rebuilt"]:
+            self.version += 1  # a rebuild counted it
         st = self.stats
         st["updates"] += 1
         st["sweeps"] += rec["sweeps"]
@@ -552,8 +564,6 @@ class MLG:
     def phase_lag(self):
         """Largest misregistration between adjacent lines of a periodic
         axis, in site spacings.
-        if not rec["rebuilt"]:
-            self.version += 1  # a rebuild counted it
 
         A line's phase is the mean offset of its stored coordinates from the
         evenly spaced positions ``(i + 1/2) L / n``; seam swaps preserve it,
