@@ -1,10 +1,11 @@
 """One MLG that follows a system across calls: MD steps, list builds,
 trajectory frames.
 
-Every consumer of the grid (the calculator, the neighbour lists, the RDFs)
-asks the same question at each call: can the grid it holds be moved to the
-new positions by swap sweeps (O(N), Boris 1985 §III), or must it be built
-anew (O(N log N))?  :class:`GridTracker` is the one answer:
+Every list kept on a grid (:class:`ase_mlg.verletlist.VerletList`, for the
+calculator, the neighbour lists and the RDFs) asks the same question at
+each build: can the grid it holds be moved to the new positions by swap
+sweeps (O(N), Boris 1985 §III), or must it be built anew (O(N log N))?
+:class:`GridTracker` is the one answer:
 
 * no grid yet, or a different number of atoms: build;
 * the same box (:meth:`ase_mlg.geometry.Box.same_as`: cell and pbc equal):
