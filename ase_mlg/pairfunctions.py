@@ -26,7 +26,8 @@ def _lj(r2, sigma, epsilon):
 @numba.njit(cache=True, error_model='numpy')
 def lennard_jones_shifted_r2(r2, p):
     """Lennard-Jones shifted to zero at the cutoff (ASE ``smooth=False``),
-    squared form (``squared=True`` in :class:`PairPotential`).
+    squared form (``squared=True`` in
+    :class:`~ase_mlg.potentials.PairPotential`).
 
     ``p = [sigma (Å), epsilon (eV), shift (eV)]`` where ``shift`` is the
     unshifted energy at the cutoff.  Takes ``r**2`` (Å²) and returns

@@ -1,19 +1,39 @@
 """The pair kernel: one fused loop over a :class:`~ase_mlg.pairlist.PairList`.
 
-:func:`_pair_sum` walks the rows of the half list in grid order, computes
+The kernel walks the rows of the half list in grid order, computes
 ``D = X[u] - X[t] + S @ cell`` in registers in ASE's operation order, calls
 the pair function (inlined), and accumulates energy, forces and, when
-asked, per-atom energies and virials.  A user's pair function is passed as
-a compile-time argument (:data:`_GENERIC`, compiled once per process); the
-built-in potentials have cached entry points with their pair function
-inlined (:data:`_BUILT_IN`).  Threads follow :mod:`ase_mlg.parallel` and
-:mod:`ase_mlg.partition`: chunks of rows with equal pair counts handed out
-one at a time, a force buffer per chunk covering only the window of ranks
-the chunk touches, windows summed per rank in chunk order, so the same
-chunks give the same bits (docs/design.md §8).
+asked, per-atom energies and virials.  Threads follow :mod:`ase_mlg.parallel`
+and :mod:`ase_mlg.partition`: chunks of rows with equal pair counts handed
+out one at a time, a force buffer per chunk covering only the window of
+ranks the chunk touches, windows summed per rank in chunk order, so the
+same chunks give the same bits (docs/design.md §8).
+
+The module's vocabulary
+-----------------------
+The kernel takes four named structures (numba reads their fields by name;
+the kernel copies them to locals before its ``prange`` loops, which numba's
+parallel lowering needs):
+
+* :class:`SumList` -- the half list and the positions in row order;
+* :class:`SumTables` -- the potential's tables and what to accumulate;
+* :class:`ase_mlg.partition.Chunks` -- the chunks of rows and their windows;
+* :class:`SumOutputs` -- the chunk buffers and the per-atom outputs.
+
+:func:`pair_kernel` returns the kernel for a pair function, serial or
+threaded: the built-in pair functions (:func:`is_built_in`) have cached
+entry points with the pair function inlined, a user's pair function goes
+into the generic kernel as a compile-time argument (a numba dispatcher,
+inlined too, but compiled once per process: numba's on-disk cache cannot
+key a function argument).  A kernel flags bad pairs without naming them
+(no per-pair branch in the loop); :func:`first_bad_pair` then finds the
+first one and says why with a :class:`PairError` code.
 """
 
+import enum
+import functools
 import math
+from collections import namedtuple
 
 import numba
 import numpy as np
@@ -24,73 +44,115 @@ from .pairlist import pair_vector
 from .partition import local_rank
 from .parallel import serial_and_parallel, use_threads
 
-__all__ = ["shift_vectors", "pair_vectors"]
-
-# Error codes returned by the kernel; the Python side turns them into messages
-# because a numba exception cannot carry the pair's indices and distance.
-_OK, _BAD_DISTANCE, _BELOW_RMIN, _NON_FINITE = range(4)
+__all__ = ["SumList", "SumTables", "SumOutputs", "PairError",
+           "pair_kernel", "is_built_in", "first_bad_pair",
+           "shift_vectors", "pair_vectors"]
 
 
-def _pair_sum(pair, args):
+class PairError(enum.IntEnum):
+    """Why :func:`first_bad_pair` flagged a pair.  The kernels return codes,
+    and the Python side writes the message, because a numba exception
+    cannot carry the pair's indices and distance."""
+
+    #: No bad pair.
+    OK = 0
+    #: Distance 0 or NaN (overlapping atoms, non-finite positions).
+    BAD_DISTANCE = 1
+    #: Closer than the species pair's ``rmin``.
+    BELOW_RMIN = 2
+    #: The pair function returned a non-finite energy or force.
+    NON_FINITE = 3
+
+
+#: The list side of a pair sum: ``X`` float64[N, 3] (positions in row
+#: order, Å), ``types`` int32[N] (type index of each row), ``rowptr``
+#: int64[N + 1], ``nbr`` int32[M], ``code`` uint8[M] or int32[M] (the half
+#: list: pairs ``(t, nbr[q])`` for ``q`` in ``rowptr[t]:rowptr[t + 1]``,
+#: ``D = X[nbr[q]] - X[t] + svec[code[q]]``), ``svec`` float64[K, 3]
+#: (Cartesian cell shift of every code, Å), ``order`` int64[N] (the atom of
+#: each row).
+SumList = namedtuple("SumList", "X types rowptr nbr code svec order")
+
+#: The potential side of a pair sum: ``squared`` (bool: the pair function
+#: takes ``r**2`` and returns ``(e, dE/dr / r)``: no square root, one
+#: division less, the built-in LJ), ``params`` float64[T, T, P], ``cut2``
+#: float64[T, T] (squared cutoffs, Å²: pairs with ``d**2 > cut2`` are
+#: skipped, ASE's LJ keeps ``d == rc``), ``rmin2`` float64[T, T] (squared
+#: ``rmin``, Å²: closer pairs are errors), ``check_rmin`` (bool: count
+#: pairs below ``rmin``), ``want_virial`` (bool: accumulate the virial;
+#: per-atom virials need it too).
+SumTables = namedtuple("SumTables",
+                       "squared params cut2 rmin2 check_rmin want_virial")
+
+#: What a pair sum writes: ``fbuf`` float64[E, 3], ``ebuf`` float64[E or 0],
+#: ``vbuf`` float64[E or 0, 6] (the chunks' window buffers,
+#: :meth:`ase_mlg.partition.RowChunks.buffers`: zero-length ``ebuf`` /
+#: ``vbuf`` when no per-atom energies / virials are wanted), ``part``
+#: float64[C, 9] (per chunk: energy (eV), virial (6, eV), the sum of every
+#: pair's ``dE/dr / r`` (not finite if any pair energy, force or distance
+#: was bad) and the number of pairs below ``rmin``), ``forces``
+#: float64[N, 3] eV/Å, ``energies`` float64[N or 0] eV, ``virials``
+#: float64[N or 0, 6] eV (in atom order; virials are ``-D (x) dE/dD`` in
+#: Voigt order xx, yy, zz, yz, xz, xy, half of each pair to each atom).
+SumOutputs = namedtuple("SumOutputs",
+                        "fbuf ebuf vbuf part forces energies virials")
+
+
+def _pair_sum(pair, lst, pot, chunks, out):
     """Energy, forces and virials of a half pair list, one fused pass.
 
     The pair function is a compile-time argument (a numba dispatcher), so it
     is inlined into the loop.  Rows are split into the chunks of
-    ``chunks`` (:class:`ase_mlg.partition.Chunks`, about equal pair counts);
-    each chunk accumulates into its own window of the buffers (``fbuf`` and
-    ``ebuf``/``vbuf`` when per-atom energies or virials are wanted: pass
-    zero-length arrays otherwise): entry ``offset[c] + local_rank(r)`` is
-    rank ``r`` of chunk ``c``.  The windows are then summed per rank in
-    chunk order and scattered to atom order (``forces[order[t]]``), so the
-    result is the same on every run with the same chunks, whichever thread
-    ran which chunk.
+    ``chunks`` (about equal pair counts); each chunk accumulates into its
+    own window of the buffers (``out.fbuf`` and ``out.ebuf``/``out.vbuf``
+    when per-atom energies or virials are wanted): entry
+    ``offset[c] + local_rank(r)`` is rank ``r`` of chunk ``c``.  The windows
+    are then summed per rank in chunk order and scattered to atom order
+    (``forces[order[t]]``), so the result is the same on every run with the
+    same chunks, whichever thread ran which chunk.
 
     Parameters
     ----------
     pair : numba function ``(r, p) -> (e, dE/dr)``
-    args : tuple
-        ``(squared, X, types, rowptr, nbr, code, svec, params, cut2, rmin2,
-        check_rmin, want_w, chunks, order, fbuf, ebuf, vbuf, part, forces,
-        energies, virials)`` (one tuple, so that the cached entry points of the
-        built-in potentials below stay one line each):
-    want_w : bool
-        Accumulate the virial (stress); per-atom virials need it too.
-    squared : bool
-        ``pair`` takes ``r**2`` and returns ``(e, dE/dr / r)`` instead
-        (no square root, one division less: the built-in LJ).
-    X : float64[N, 3]
-        Positions in row order, Å.
-    types : int32[N]
-        Type index of each row.
-    rowptr, nbr, code : int64[N + 1], int32[M], uint8[M] or int32[M]
-        The half list: pairs ``(t, nbr[q])`` for ``q`` in
-        ``rowptr[t]:rowptr[t + 1]``, ``D = X[nbr[q]] - X[t] + svec[code[q]]``.
-    svec : float64[K, 3]
-        Cartesian cell shift of every code, Å.
-    params : float64[T, T, P]
-    cut2, rmin2 : float64[T, T]
-        Squared cutoff (pairs with ``d**2 > cut2`` are skipped: ASE's LJ
-        keeps ``d == rc``) and squared ``rmin`` (closer pairs are counted
-        as errors, only with ``check_rmin``), Å².
-    chunks : Chunks
+        Or ``(r**2, p) -> (e, dE/dr / r)`` with ``pot.squared``.
+    lst : SumList
+    pot : SumTables
+    chunks : ase_mlg.partition.Chunks
         The chunks, their windows and the reduction's segments; the kernel
         writes ``chunks.thread`` (the numba thread of each chunk).
-    part : float64[C, 9]
-        Out, per chunk: energy (eV), virial (6, eV), the sum of every
-        pair's ``dE/dr / r`` (not finite if any pair energy, force or
-        distance was bad: no per-pair branch in the loop) and the number of
-        pairs below rmin.  :func:`_first_bad_pair` then names the pair.
-
-    Out: ``forces`` (N, 3) eV/Å, ``energies`` (N or 0) eV, ``virials``
-    (N or 0, 6) eV, in atom order.  Virials are ``-D (x) dE/dD`` in Voigt
-    order (xx, yy, zz, yz, xz, xy), half of each pair to each atom.
+    out : SumOutputs
+        Written: every field (``part`` per chunk; :func:`first_bad_pair`
+        then names a flagged pair).
     """
-    (squared, X, types, rowptr, nbr, code, svec, params, cut2, rmin2,
-     check_rmin, want_w, chunks, order, fbuf, ebuf, vbuf, part, forces,
-     energies, virials) = args
-    # the chunk tables as locals: numba's parallel lowering cannot read a
+    # every field as a local: numba's parallel lowering cannot read a
     # named tuple's fields inside prange
-    rows, wlo, _, offset, seg, cover_ptr, cover, thread = chunks
+    X = lst.X
+    types = lst.types
+    rowptr = lst.rowptr
+    nbr = lst.nbr
+    code = lst.code
+    svec = lst.svec
+    order = lst.order
+    squared = pot.squared
+    params = pot.params
+    cut2 = pot.cut2
+    rmin2 = pot.rmin2
+    check_rmin = pot.check_rmin
+    want_w = pot.want_virial
+    rows = chunks.rows
+    wlo = chunks.lo
+    offset = chunks.offset
+    seg = chunks.seg
+    cover_ptr = chunks.cover_ptr
+    cover = chunks.cover
+    thread = chunks.thread
+    fbuf = out.fbuf
+    ebuf = out.ebuf
+    vbuf = out.vbuf
+    part = out.part
+    forces = out.forces
+    energies = out.energies
+    virials = out.virials
     n = X.shape[0]
     nchunk = wlo.shape[0]
     want_e = ebuf.shape[0] > 0
@@ -256,10 +318,32 @@ _pair_sum_inline = numba.njit(inline='always', error_model='numpy')(_pair_sum)
 
 
 @numba.njit(cache=True, error_model='numpy')
-def _first_bad_pair(pair, squared, X, types, rowptr, nbr, code, svec, params,
-                    cut2, rmin2):
-    """The first pair of the list that :func:`_pair_sum` flagged (error
-    path only): ``(q, why)``, or ``(-1, _OK)``."""
+def first_bad_pair(pair, lst, pot):
+    """The first pair of the list that a kernel of :func:`pair_kernel`
+    flagged (the error path only: a serial scan).
+
+    Parameters
+    ----------
+    pair : numba function
+        The pair function the kernel ran with.
+    lst : SumList
+    pot : SumTables
+
+    Returns
+    -------
+    (int, PairError)
+        The pair's index ``q`` into ``lst.nbr`` and why it is bad, or
+        ``(-1, PairError.OK)``.
+    """
+    X = lst.X
+    types = lst.types
+    rowptr = lst.rowptr
+    nbr = lst.nbr
+    code = lst.code
+    svec = lst.svec
+    params = pot.params
+    cut2 = pot.cut2
+    rmin2 = pot.rmin2
     for t in range(X.shape[0]):
         ta = types[t]
         for q in range(rowptr[t], rowptr[t + 1]):
@@ -270,18 +354,19 @@ def _first_bad_pair(pair, squared, X, types, rowptr, nbr, code, svec, params,
             if r2 > cut2[ta, tb]:
                 continue
             if not r2 > 0.0:  # also NaN
-                return q, _BAD_DISTANCE
+                return q, PairError.BAD_DISTANCE
             if r2 < rmin2[ta, tb]:
-                return q, _BELOW_RMIN
-            if squared:
+                return q, PairError.BELOW_RMIN
+            if pot.squared:
                 e, s = pair(r2, params[ta, tb])
             else:
                 r = math.sqrt(r2)
                 e, dedr = pair(r, params[ta, tb])
                 s = dedr / r
             if not (math.isfinite(e) and math.isfinite(s)):
-                return q, _NON_FINITE
-    return -1, _OK
+                return q, PairError.NON_FINITE
+    return -1, PairError.OK
+
 
 def shift_vectors(shifts, cell):
     """``S @ cell`` for integer shifts S (K, 3), in the operation order of
@@ -326,19 +411,53 @@ def pair_vectors(positions, i, j, shifts, cell):
 
 # Cached kernels of the built-in potentials: module-level functions naming
 # their pair function, so numba can key them on disk.
-def _sum_lj_shifted(args):
-    _pair_sum_inline(lennard_jones_shifted_r2, args)
+def _sum_lj_shifted(lst, pot, chunks, out):
+    _pair_sum_inline(lennard_jones_shifted_r2, lst, pot, chunks, out)
 
 
-def _sum_lj_smooth(args):
-    _pair_sum_inline(lennard_jones_smooth_r2, args)
+def _sum_lj_smooth(lst, pot, chunks, out):
+    _pair_sum_inline(lennard_jones_smooth_r2, lst, pot, chunks, out)
 
 
-def _sum_morse(args):
-    _pair_sum_inline(morse, args)
+def _sum_morse(lst, pot, chunks, out):
+    _pair_sum_inline(morse, lst, pot, chunks, out)
 
 
 _FLAGS = dict(nogil=True, error_model='numpy')
 _BUILT_IN = {lennard_jones_shifted_r2: serial_and_parallel(_sum_lj_shifted, **_FLAGS),
              lennard_jones_smooth_r2: serial_and_parallel(_sum_lj_smooth, **_FLAGS),
              morse: serial_and_parallel(_sum_morse, **_FLAGS)}
+
+
+def is_built_in(pair):
+    """Whether ``pair`` has a cached kernel of its own (the pair functions
+    of :mod:`ase_mlg.pairfunctions` that the built-in potentials use)."""
+    return pair in _BUILT_IN
+
+
+def pair_kernel(pair, threaded):
+    """The pair-sum kernel for the pair function ``pair``.
+
+    Parameters
+    ----------
+    pair : numba dispatcher
+    threaded : bool
+        The threaded twin (``prange`` over the chunks) or the serial one
+        (:func:`ase_mlg.parallel.serial_and_parallel`); launch a threaded
+        one inside :class:`ase_mlg.parallel.dynamic_schedule`.
+
+    Returns
+    -------
+    callable ``kernel(lst, pot, chunks, out)``
+        Takes a :class:`SumList`, a :class:`SumTables`, an
+        :class:`ase_mlg.partition.Chunks` and a :class:`SumOutputs`, fills
+        ``out`` and returns None.  For a built-in pair function
+        (:func:`is_built_in`) the cached numba dispatcher itself; else
+        ``functools.partial(generic, pair)`` with ``generic`` the generic
+        kernel's dispatcher (``.func``), compiled on first use in each
+        process.
+    """
+    twins = _BUILT_IN.get(pair)
+    if twins is not None:
+        return twins[bool(threaded)]
+    return functools.partial(_GENERIC[bool(threaded)], pair)

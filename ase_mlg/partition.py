@@ -156,7 +156,9 @@ def _chunks(rowptr, nbr, nchunk):
 
 
 class RowChunks:
-    """The chunks of one pair list for one chunk count, with their buffers.
+    """The chunks of one pair list for one chunk count, with their buffers:
+    what :meth:`ase_mlg.potentials.PairPotential.sum_pairs` takes as
+    ``chunks`` (the same chunks give the same bits).
 
     Parameters
     ----------

@@ -2,9 +2,11 @@
 
 A pair potential is a numba-compiled pair function plus a table of parameter
 rows, one row per species pair.  Every potential -- built-in or user-defined --
-is evaluated by the same compiled kernel, ``_pair_sum`` (through
-:meth:`PairPotential.sum_pairs` and :meth:`PairPotential.evaluate`), which
-receives the pair function as a first-class function argument.
+is evaluated by the fused kernel of :mod:`ase_mlg.pairsum` (through
+:meth:`PairPotential.sum_pairs` and :meth:`PairPotential.evaluate`), with the
+pair function inlined into its loop: the built-in pair functions have cached
+kernels of their own, a user's pair function is a compile-time argument of
+the generic kernel (:func:`ase_mlg.pairsum.pair_kernel`).
 
 Units are those of ASE: distances in Å, energies in eV, forces in eV/Å,
 virials in eV.
@@ -20,14 +22,18 @@ Writing your own pair potential
        def f(r, p):
            return e, dedr
 
-   It is called only for ``0 < r < cutoff`` of the species pair and must not
-   modify ``p`` (a view of the potential's table).  Truncation, shifting or
-   smoothing at the cutoff is the function's own business (see
-   :func:`lennard_jones_shifted`).  With ``error_model='numpy'`` a division
-   by zero gives ``inf``, which the kernel reports with the offending pair;
-   ``cache=True`` is recommended when the function lives in a file.  The
-   function is compiled for :data:`PAIR_SIGNATURE` and called through a
-   function pointer, so it is not inlined into the kernel.
+   Its results count only for ``0 < r <= cutoff`` of the species pair
+   (ASE's LJ keeps ``r == rc``; the kernel has no per-pair branch, so a pair
+   at ``r = 0`` is evaluated too and then reported as an error), and it must
+   not modify ``p`` (a view of the potential's table).  Truncation, shifting
+   or smoothing at the cutoff is the function's own business (see
+   :func:`~ase_mlg.pairfunctions.lennard_jones_shifted`).  With
+   ``error_model='numpy'`` a division by zero gives ``inf``, which the
+   kernel reports with the offending pair; ``cache=True`` is recommended
+   when the function lives in a file.  The function must compile for
+   :data:`PAIR_SIGNATURE` (checked when the potential is built); the kernel
+   takes it as a compile-time argument and inlines it, compiling the
+   generic kernel for it once per process.
 
 2. Build a :class:`PairPotential` with one row per *unordered* species pair
    (``('Ar', 'Kr')`` also defines ``('Kr', 'Ar')``) and a cutoff per pair, or a
@@ -62,7 +68,6 @@ True
 :func:`lennard_jones_mixture` is a worked example built the same way.
 """
 
-import functools
 import math
 import re
 from collections.abc import Mapping
@@ -75,8 +80,8 @@ from numba.core.dispatcher import Dispatcher
 
 from .pairfunctions import (lennard_jones_shifted, lennard_jones_shifted_r2,
                             lennard_jones_smooth, lennard_jones_smooth_r2, morse)
-from .pairsum import (_BAD_DISTANCE, _BELOW_RMIN, _BUILT_IN, _GENERIC,
-                      _NON_FINITE, _first_bad_pair)
+from .pairsum import (PairError, SumList, SumOutputs, SumTables,
+                      first_bad_pair, pair_kernel)
 from .parallel import dynamic_schedule
 from .partition import RowChunks, row_chunks
 
@@ -178,7 +183,8 @@ class PairPotential:
         elements (species-agnostic potential).
     cutoffs : dict or float
         Cutoff per species pair (same keys as ``params``) or one for all, Å.
-        Pairs with ``d >= cutoff`` contribute nothing.
+        Pairs with ``d > cutoff`` contribute nothing (``d == cutoff`` is
+        kept, as in ASE's LJ).
     rmin : dict or float, optional
         Closer pairs raise ``ValueError`` (use for potentials that are
         singular or unphysical at short range), Å.  Pairs missing from a
@@ -438,7 +444,8 @@ class PairPotential:
         X : float64[N, 3]
             Positions in row order, Å.
         types : int32[N]
-            Type index of each row (see :meth:`prepare`).
+            Type index of each row: ``prepare(numbers)[0][order]`` (see
+            :meth:`prepare`, which is in atom order).
         rowptr, nbr, code : int64[N + 1], int32[M], uint8[M] or int32[M]
         svec : float64[K, 3]
             Cartesian cell shift of each code, Å.
@@ -450,12 +457,13 @@ class PairPotential:
         virial : bool
             Return the total ``virial``; MD without a barostat needs none
             (skipping it saves a tenth of the time).
-        chunks : ase_mlg.partition.RowChunks or int, optional
-            The chunks of rows the work is cut into (a ``RowChunks`` of
-            this list is reused with its buffers from call to call; the
-            calculator keeps one per list), or their number.  Default:
+        chunks : ase_mlg.partition.RowChunks, optional
+            The chunks of rows the work is cut into, built for this list
+            (``RowChunks(rowptr, nbr, nchunk)``), reused with its buffers
+            from call to call: the calculator keeps one per list.  Default:
             :func:`ase_mlg.partition.row_chunks` for numba's thread count
-            on long lists, 1 on short ones.  Same chunks, same bits.
+            on long lists (one chunk on short ones), built anew each call.
+            Same chunks, same bits.
 
         Returns
         -------
@@ -466,40 +474,38 @@ class PairPotential:
         n = len(order)
         if chunks is None:
             chunks = row_chunks(rowptr, nbr)
-        if not isinstance(chunks, RowChunks):
-            chunks = RowChunks(rowptr, nbr, max(1, min(int(chunks), max(n, 1))))
+        elif not isinstance(chunks, RowChunks):
+            raise TypeError(f'chunks must be an ase_mlg.partition.RowChunks '
+                            f'of this list or None, got {chunks!r}')
         nchunk = chunks.nchunk
-        if self.pair in _BUILT_IN:
-            kernel = _BUILT_IN[self.pair][nchunk > 1]
-        else:
-            kernel = functools.partial(_GENERIC[nchunk > 1], self.pair)
+        kernel = pair_kernel(self.pair, threaded=nchunk > 1)
+        lst = SumList(X, types, rowptr, nbr, code, svec, order)
+        pot = SumTables(self.squared, self.params, self._cut2, self._rmin2,
+                         self._check_rmin, bool(virial or virials))
         out = {'forces': np.empty((n, 3))}
         e_out = np.empty(n if energies else 0)
         v_out = np.empty((n if virials else 0, 6))
-        args = (self.squared, X, types, rowptr, nbr, code, svec, self.params,
-                self._cut2, self._rmin2, self._check_rmin,
-                bool(virial or virials))
         part = np.zeros((nchunk, 9))
         try:
             fbuf, ebuf, vbuf = chunks.buffers(energies, virials)
+            sums = SumOutputs(fbuf, ebuf, vbuf, part, out['forces'], e_out,
+                              v_out)
             with dynamic_schedule():
-                kernel(args + (chunks.arrays, order, fbuf, ebuf, vbuf, part,
-                               out['forces'], e_out, v_out))
+                kernel(lst, pot, chunks.arrays, sums)
             if part[:, 8].any() or not np.isfinite(part[:, [0, 7]]).all():
-                q, why = _first_bad_pair(self.pair, *args[:-2])
+                q, why = first_bad_pair(self.pair, lst, pot)
                 if q < 0:
                     raise ValueError('non-finite total energy or force '
                                      '(overflow of the pair sums)')
-                raise self._pair_error(X, types, rowptr, nbr, code, svec,
-                                       order, q, why)
+                raise self._pair_error(lst, q, why)
         except ArithmeticError as err:
             # pair functions compiled with error_model='python' raise; find
             # the pair in Python (error path only) to name it
-            q = self._find_raising_pair(X, types, rowptr, nbr, code, svec)
+            q = self._find_raising_pair(lst)
             if q < 0:
                 raise
-            raise self._pair_error(X, types, rowptr, nbr, code, svec, order,
-                                   q, _NON_FINITE, err) from None
+            raise self._pair_error(lst, q, PairError.NON_FINITE,
+                                   err) from None
         out['energy'] = math.fsum(part[:, 0])
         if virial or virials:
             out['virial'] = part[:, 1:7].sum(axis=0)
@@ -509,16 +515,19 @@ class PairPotential:
             out['virials_voigt'] = v_out
         return out
 
-    def _pair_geometry(self, X, rowptr, nbr, code, svec, q):
-        t = int(np.searchsorted(rowptr, q, side='right') - 1)
-        u = int(nbr[q])
-        D = (X[u] - X[t]) + svec[code[q]]
+    @staticmethod
+    def _pair_geometry(lst, q):
+        """Rows ``(t, u)`` and distance (Å) of pair ``q`` of ``lst``
+        (a :class:`ase_mlg.pairsum.SumList`)."""
+        t = int(np.searchsorted(lst.rowptr, q, side='right') - 1)
+        u = int(lst.nbr[q])
+        D = (lst.X[u] - lst.X[t]) + lst.svec[lst.code[q]]
         return t, u, float(np.sqrt(D @ D))
 
-    def _find_raising_pair(self, X, types, rowptr, nbr, code, svec):
-        for q in range(int(rowptr[-1])):
-            t, u, r = self._pair_geometry(X, rowptr, nbr, code, svec, q)
-            ta, tb = types[t], types[u]
+    def _find_raising_pair(self, lst):
+        for q in range(int(lst.rowptr[-1])):
+            t, u, r = self._pair_geometry(lst, q)
+            ta, tb = lst.types[t], lst.types[u]
             if 0 < r <= self.cutoffs[ta, tb]:
                 try:
                     self._call_pair(r, ta, tb)
@@ -533,16 +542,17 @@ class PairPotential:
             return e, du * r
         return self.pair(r, self.params[ta, tb])
 
-    def _pair_error(self, X, types, rowptr, nbr, code, svec, order, q, why,
-                    cause=None):
-        """The ValueError describing why pair ``q`` failed."""
-        t, u, r = self._pair_geometry(X, rowptr, nbr, code, svec, q)
-        ta, tb = types[t], types[u]
-        where = f'atoms {order[t]} and {order[u]} at distance {r:.6g} Å'
-        if why == _BAD_DISTANCE:
+    def _pair_error(self, lst, q, why, cause=None):
+        """The ValueError describing why pair ``q`` of ``lst`` failed
+        (``why`` a :class:`ase_mlg.pairsum.PairError`)."""
+        t, u, r = self._pair_geometry(lst, q)
+        ta, tb = lst.types[t], lst.types[u]
+        where = (f'atoms {lst.order[t]} and {lst.order[u]} at distance '
+                 f'{r:.6g} Å')
+        if why == PairError.BAD_DISTANCE:
             return ValueError(f'{where}: distance must be > 0 (overlapping '
                               f'atoms?)')
-        if why == _BELOW_RMIN:
+        if why == PairError.BELOW_RMIN:
             return ValueError(f'{where}: closer than rmin {self.rmin[ta, tb]} '
                               f'Å for {self._type_name(ta, tb)}')
         if cause is not None:
@@ -703,8 +713,8 @@ def lennard_jones_mixture(sigma, epsilon, rc=None):
     Returns
     -------
     PairPotential
-        Built from :func:`lennard_jones_shifted` with rows
-        ``[sigma_AB, epsilon_AB, shift_AB]``.
+        Built from :func:`~ase_mlg.pairfunctions.lennard_jones_shifted_r2`
+        (``squared=True``) with rows ``[sigma_AB, epsilon_AB, shift_AB]``.
     """
     if set(sigma) != set(epsilon):
         raise ValueError(f'sigma and epsilon must name the same elements, '

@@ -80,47 +80,78 @@ def test_random_index_order_same_answer_as_sorted():
     assert_like_ase(b, MLGCalculator(LennardJones(**AR)))
 
 
-def _list_args(atoms):
+def _calculator_list(atoms, pot, skin=1.0):
+    """The kernel's inputs built the way the calculator's list is built
+    (:class:`ase_mlg.verletlist.VerletList`, exact mode): an MLG of the
+    atoms, the half list within rc + skin (pairs within rc first in each
+    row), the positions in the images the list refers to, the shift
+    vectors, the types in row order."""
+    from ase_mlg.blocks import BlockIndex, block_for_radius
+    from ase_mlg.grid import MLG
     from ase_mlg.pairsum import shift_vectors
-    calc = MLGCalculator(LennardJones(**AR))
-    atoms = atoms.copy()
-    atoms.calc = calc
-    atoms.get_forces()
-    pl = calc._list
-    # the positions in the images the list refers to, as the calculator
-    # hands them to the kernel
-    X = pl.positions(atoms.positions, atoms.cell.array)
-    return calc.potential, (X, calc._types, pl.rowptr, pl.nbr, pl.code,
-                            shift_vectors(pl.shifts, atoms.cell.array), pl.order)
+    from ase_mlg.query import half_list
+    cell = atoms.cell.array
+    grid = MLG(atoms.positions, cell, atoms.pbc)
+    rc = pot.cutoff
+    rlist = rc + skin
+    pl = half_list(BlockIndex(grid, block_for_radius(grid, rlist)),
+                   np.full(len(atoms), rlist), cut=rlist, split=rc)
+    X = pl.positions(atoms.positions, cell)
+    svec = shift_vectors(pl.shifts, cell)
+    types = np.ascontiguousarray(pot.prepare(atoms.numbers)[0][pl.order])
+    return pl, (X, types, pl.rowptr, pl.nbr, pl.code, svec, pl.order)
 
 
 def test_chunks_reproducible_and_agree_across_counts():
+    """Every chunking of the calculator's list is ASE's answer (windowed
+    buffers lose no pair), and the same chunks give the same bits."""
+    import naive
+    from ase_mlg.partition import RowChunks
     atoms = argon(5)
-    pot, args = _list_args(atoms)
-    runs = {k: pot.sum_pairs(*args, energies=True, virials=True, chunks=k)
-            for k in (1, 2, 3, 7, 16, 64)}
-    again = pot.sum_pairs(*args, energies=True, virials=True, chunks=3)
-    for key in ("forces", "energies", "virials_voigt", "virial"):
-        np.testing.assert_array_equal(again[key], runs[3][key])  # same count: same bits
-    assert again["energy"] == runs[3]["energy"]
-    ref = runs[1]
-    scale = np.abs(ref["forces"]).max()
-    for k, r in runs.items():
-        np.testing.assert_allclose(r["forces"], ref["forces"], rtol=0, atol=1e-12 * scale)
-        assert r["energy"] == pytest.approx(ref["energy"], rel=1e-12)
-        np.testing.assert_allclose(r["virial"], ref["virial"], rtol=1e-12)
-        np.testing.assert_allclose(r["energies"], ref["energies"], rtol=0,
-                                   atol=1e-12 * np.abs(ref["energies"]).max())
-        np.testing.assert_allclose(r["virials_voigt"], ref["virials_voigt"], rtol=0,
-                                   atol=1e-12 * np.abs(ref["virials_voigt"]).max())
-    # and every chunking is ASE's answer (windowed buffers lose no pair)
-    from ase.calculators.lj import LennardJones as AseLJ
+    pot = LennardJones(**AR)
+    pl, args = _calculator_list(atoms, pot)
+    keys = ("forces", "energies", "virials_voigt", "virial")
+    runs = {}
+    for k in (1, 2, 3, 7):
+        chunks = RowChunks(pl.rowptr, pl.nbr, k)
+        assert chunks.nchunk == k
+        runs[k] = r = pot.sum_pairs(*args, energies=True, virials=True, chunks=chunks)
+        # repeated with the same chunks (buffers reused) and with the same
+        # chunks built anew: the same bits
+        for again in (pot.sum_pairs(*args, energies=True, virials=True, chunks=chunks),
+                      pot.sum_pairs(*args, energies=True, virials=True,
+                                    chunks=RowChunks(pl.rowptr, pl.nbr, k))):
+            for key in keys:
+                np.testing.assert_array_equal(again[key], r[key])
+            assert again["energy"] == r["energy"]
     a = atoms.copy()
     a.calc = AseLJ(**AR, smooth=False)
+    e = a.get_potential_energy()
     fa = a.get_forces()
+    sa = a.get_stress()
+    ea = a.get_potential_energies()
+    sta = a.get_stresses()
+    volume = atoms.get_volume()
+    # the brute-force oracle: every pair over every image that matters
+    e_naive = naive.energy(atoms, lambda r, *_: naive.lj(r, **AR), cutoff=AR["rc"])
+    assert e_naive == pytest.approx(e, rel=1e-10)
     for k, r in runs.items():
+        assert r["energy"] == pytest.approx(e, rel=1e-10), k
+        assert r["energy"] == pytest.approx(e_naive, rel=1e-10), k
         np.testing.assert_allclose(r["forces"], fa, rtol=0, atol=1e-10 * np.abs(fa).max())
-        assert r["energy"] == pytest.approx(a.get_potential_energy(), rel=1e-10)
+        np.testing.assert_allclose(-r["virial"] / volume, sa, rtol=0,
+                                   atol=1e-10 * np.abs(sa).max())
+        np.testing.assert_allclose(r["energies"], ea, rtol=0,
+                                   atol=1e-10 * np.abs(ea).max())
+        np.testing.assert_allclose(-r["virials_voigt"] / volume, sta, rtol=0,
+                                   atol=1e-10 * np.abs(sta).max())
+    # and the chunkings agree with one another to rounding
+    ref = runs[1]
+    for k, r in runs.items():
+        np.testing.assert_allclose(r["forces"], ref["forces"], rtol=0,
+                                   atol=1e-12 * np.abs(ref["forces"]).max())
+        assert r["energy"] == pytest.approx(ref["energy"], rel=1e-12)
+        np.testing.assert_allclose(r["virial"], ref["virial"], rtol=1e-12)
 
 
 def test_thread_counts_agree_in_subprocesses():
@@ -243,7 +274,7 @@ def test_exact_list_rows_hold_pairs_within_the_cutoff_first():
     calc = MLGCalculator(LennardJones(**AR))
     atoms.calc = calc
     atoms.get_forces()
-    pl = calc._list
+    pl = calc.verlet_list.pairs
     X = pl.positions(atoms.positions, atoms.cell.array)
     svec = shift_vectors(pl.shifts, atoms.cell.array)
     t = np.repeat(np.arange(pl.natoms), np.diff(pl.rowptr))

@@ -20,6 +20,9 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from ase_mlg import potentials as P
+from ase_mlg.pairsum import (PairError, SumList, SumTables,
+                             first_bad_pair, is_built_in, pair_kernel)
+from ase_mlg.partition import RowChunks
 from ase_mlg.potentials import (LennardJones, Morse, PairPotential,
                                 lennard_jones_mixture)
 
@@ -435,16 +438,23 @@ def test_built_in_kernels_are_cached_user_kernels_compiled_once():
     atoms = fcc_ar(1, rattle=0.1)
     for pot in [*BUILT.values(), LennardJones(smooth=True)]:
         run(pot, atoms)
-        assert pot.pair in P._BUILT_IN
+        assert is_built_in(pot.pair)
+        for threaded in (False, True):
+            k = pair_kernel(pot.pair, threaded)
+            assert k is pair_kernel(pot.pair, threaded)  # one entry point each
     user = PairPotential(soft, [1.0, 2.0], 2.0)
-    assert user.pair not in P._BUILT_IN
+    assert not is_built_in(user.pair)
     run(user, atoms)
-    assert len(P._GENERIC[0].overloads) >= 1
+    generic = pair_kernel(user.pair, False)
+    assert generic.args == (user.pair,)
+    assert len(generic.func.overloads) >= 1
+    # every user pair function goes through the one generic dispatcher
+    assert pair_kernel(blows_up, False).func is generic.func
 
 
 def test_kernel_is_loaded_from_cache_in_a_new_process():
-    code = ('from ase_mlg import potentials as P; P.LennardJones(); '
-            'k = P._BUILT_IN[P.lennard_jones_shifted_r2][0]; '
+    code = ('from ase_mlg import pairsum, potentials as P; P.LennardJones(); '
+            'k = pairsum.pair_kernel(P.lennard_jones_shifted_r2, False); '
             'print(sum(k.stats.cache_hits.values()))')
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [os.path.dirname(os.path.dirname(P.__file__)),
@@ -453,6 +463,47 @@ def test_kernel_is_loaded_from_cache_in_a_new_process():
         out = subprocess.run([sys.executable, '-c', code], env=env,
                              capture_output=True, text=True, check=True)
     assert out.stdout.split()[-1] == '1'
+
+
+def test_sum_pairs_takes_row_chunks_or_none():
+    # the calculator's entry point: chunks are a RowChunks of the list (or
+    # None for row_chunks); a bare count is refused, not silently used
+    atoms = fcc_ar(1, rattle=0.1)
+    i, j, D, _ = half_list(atoms, AR['rc'])
+    pot = LennardJones(**AR)
+    n = len(atoms)
+    perm = np.argsort(i, kind='stable')
+    rowptr = np.zeros(n + 1, np.int64)
+    np.cumsum(np.bincount(i, minlength=n), out=rowptr[1:])
+    args = (np.zeros((n, 3)), np.zeros(n, np.int32), rowptr,
+            j[perm].astype(np.int32), perm.astype(np.int32), D, np.arange(n))
+    ref = pot.evaluate(atoms.numbers, i, j, D)
+    for chunks in (None, RowChunks(rowptr, args[3], 3)):
+        res = pot.sum_pairs(*args, energies=True, chunks=chunks)
+        assert res['energy'] == pytest.approx(ref['energy'], rel=1e-13)
+        np.testing.assert_allclose(res['forces'], ref['forces'], rtol=1e-12,
+                                   atol=1e-15)
+    with pytest.raises(TypeError, match='RowChunks'):
+        pot.sum_pairs(*args, chunks=3)
+
+
+def test_first_bad_pair_names_the_pair_and_why():
+    # the kernels' error vocabulary: the first flagged pair and a PairError
+    X = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [5.0, 0.0, 0.0]])
+    lst = SumList(X, np.zeros(3, np.int32), np.array([0, 2, 3, 3]),
+                  np.array([2, 1, 2], np.int32), np.zeros(3, np.uint8),
+                  np.zeros((1, 3)), np.arange(3))
+    pot = LennardJones(**AR)
+    tables = SumTables(True, pot.params, pot.cutoffs**2, pot.rmin**2, False,
+                       True)
+    q, why = first_bad_pair(pot.pair, lst, tables)
+    assert (q, why) == (1, PairError.BAD_DISTANCE)
+    assert isinstance(why, PairError)
+    tables = tables._replace(rmin2=np.full((1, 1), 6.0**2))
+    assert first_bad_pair(pot.pair, lst, tables) == (0, PairError.BELOW_RMIN)
+    ok = lst._replace(rowptr=np.array([0, 1, 1, 1]))
+    tables = tables._replace(rmin2=np.zeros((1, 1)))
+    assert first_bad_pair(pot.pair, ok, tables) == (-1, PairError.OK)
 
 
 def test_prepare():
