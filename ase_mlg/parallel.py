@@ -29,8 +29,9 @@ When to thread
 Waking threads costs microseconds per launch (TBB: ~6 µs, measured), and
 an MD step launches tens of kernels, so short work runs serially.  The
 break-even point depends on the work per item, so there is one threshold
-per kind of item, all in :data:`THRESHOLDS` and read at call time through
-:func:`use_threads`:
+per kind of item, all in :data:`THRESHOLDS` (the package's fixed
+thresholds, not a setting: the tests reach the threaded paths with work
+above them), and :func:`use_threads` threads work of at least that size:
 
 * ``"sites"``: grid sites of a swap pass, a follow or a template scan;
 * ``"atoms"``: atoms of a query, a gather or a row partition;
@@ -158,8 +159,10 @@ if _PROBLEM is not None:
                   f"('pip install tbb') where it exists for the platform.",
                   ThreadingLayerWarning, stacklevel=2)
 
-#: Work sizes from which kernels run threaded (measured on 2 and 16 cores:
-#: below these, thread hand-offs cost more than they save).
+#: The package's fixed work sizes from which kernels run threaded (measured
+#: on 2 and 16 cores: below these, thread hand-offs cost more than they
+#: save).  Fixed, not a setting: what a user sets is the thread count
+#: (``numba.set_num_threads``).
 THRESHOLDS = {"sites": 32768, "atoms": 5000, "pairs": 50_000}
 
 

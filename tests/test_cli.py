@@ -1,11 +1,32 @@
-"""The command line: the demo runs end to end; bad input is one line, exit 2."""
+"""The command line: the demo runs end to end; bad input is one line, exit 2.
 
+The commands run in this process through :func:`ase_mlg.cli.main` (output
+captured by pytest, files in a temporary directory), except one smoke test
+per command that runs the installed ``ase-mlg`` in a process of its own
+(the demo's on a terminal: its progress bars need one).
+"""
+
+import inspect
 import io
+import json
+import os
 import re
 import subprocess
 import sys
 
-from ase_mlg.cli import demo, main
+import pytest
+
+import ase_mlg
+from ase_mlg.cli import _parser, demo, main
+
+
+def _main(*argv):
+    """``ase-mlg ARGV`` in this process: its exit status, returned by
+    :func:`main` or raised by argparse (``-h``, ``--version``, bad usage)."""
+    try:
+        return main(list(argv))
+    except SystemExit as exc:
+        return 0 if exc.code is None else exc.code
 
 
 def test_demo_runs_and_reports():
@@ -15,11 +36,11 @@ def test_demo_runs_and_reports():
     assert rec["template_quality"][7] > 0.95
 
 
-def test_cli_bad_argument_is_one_line():
-    res = subprocess.run([sys.executable, "-m", "ase_mlg.cli", "demo", "--natoms", "-3"],
-                         capture_output=True, text=True)
-    assert res.returncode == 2
-    assert "natoms" in res.stderr and "Traceback" not in res.stderr
+def test_cli_bad_argument_is_one_line(capfd):
+    assert _main("demo", "--natoms", "-3") == 2
+    err = capfd.readouterr().err
+    assert "natoms" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
 
 
 def test_main_returns_zero():
@@ -67,56 +88,32 @@ def test_demo_says_what_it_does_before_the_slow_steps(monkeypatch):
 
 
 # --------------------------------------------------------------------------
-# the CLI a newcomer meets (issue 12, item 6): subprocess tests
+# the CLI a newcomer meets (issue 12, item 6)
 # --------------------------------------------------------------------------
 
-import inspect  # noqa: E402
-import json  # noqa: E402
-import os  # noqa: E402
-
-import pytest  # noqa: E402
-
-import ase_mlg  # noqa: E402
-
-
-def _command():
-    """The installed ``ase-mlg`` script of this Python's environment (the
-    module where there is none, e.g. an uninstalled checkout)."""
-    exe = os.path.join(os.path.dirname(sys.executable), "ase-mlg")
-    return [exe] if os.path.isfile(exe) else [sys.executable, "-m", "ase_mlg.cli"]
-
-
-def _cli(*args, timeout=300):
-    """Run ``ase-mlg ARGS`` with output to pipes: not a terminal."""
-    return subprocess.run(_command() + list(args), capture_output=True,
-                          text=True, timeout=timeout, stdin=subprocess.DEVNULL)
-
-
-def test_bare_command_lists_commands():
-    res = _cli()
-    assert res.returncode == 0, res.stderr
+def test_bare_command_lists_commands(capfd):
+    assert _main() == 0
+    out, err = capfd.readouterr()
     for command in ("demo", "rdf", "tradeoff"):
-        assert f"\n    {command} " in res.stdout
-    assert "--version" in res.stdout and res.stderr == ""
+        assert f"\n    {command} " in out
+    assert "--version" in out and err == ""
 
 
-def test_version():
+def test_version(capfd):
     from importlib.metadata import version
-    res = _cli("--version")
-    assert res.returncode == 0
-    assert res.stdout.strip() == f"ase-mlg {ase_mlg.__version__}"
+    assert _main("--version") == 0
+    assert capfd.readouterr().out.strip() == f"ase-mlg {ase_mlg.__version__}"
     assert ase_mlg.__version__ == version("ase-mlg")
 
 
-def test_unknown_command_is_one_line():
-    res = _cli("demolish")
-    assert res.returncode == 2
-    assert len(res.stderr.strip().splitlines()) == 1 and "demolish" in res.stderr
+def test_unknown_command_is_one_line(capfd):
+    assert _main("demolish") == 2
+    err = capfd.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "demolish" in err
 
 
 @pytest.mark.parametrize("command", ["demo", "tradeoff"])
-def test_every_option_has_help(command):
-    from ase_mlg.cli import _parser
+def test_every_option_has_help(command, capfd):
     parser = _parser()
     sub = next(a for a in parser._actions if a.dest == "command")
     assert sub.choices.keys() >= {"demo", "rdf", "tradeoff"}
@@ -129,59 +126,112 @@ def test_every_option_has_help(command):
             # a stated default is the real one
             if "%(default)s" in (action.help or ""):
                 assert action.default is not None
-    res = _cli(command, "-h")
-    assert res.returncode == 0 and "default" in res.stdout
+    assert _main(command, "-h") == 0
+    assert "default" in capfd.readouterr().out
 
 
 def test_tradeoff_skin_default_is_the_calculators():
     from ase_mlg.calculator import MLGCalculator
-    from ase_mlg.cli import _parser
     calc_skin = inspect.signature(MLGCalculator.__init__).parameters["skin"].default
     args = _parser().parse_args(["tradeoff"])
     assert float(args.skin) == calc_skin == 1.0
     assert args.scene is None and args.structure is None and args.cutoff is None
 
 
-def test_tradeoff_runs_with_defaults():
+def test_tradeoff_runs_with_defaults(capfd):
     """No scene, no cutoff: the LJ argon liquid at rc = 2.5 sigma (a small
     one and one timed repeat here, to stay fast), MD with the calculator's
     skin."""
-    res = _cli("tradeoff", "--natoms", "256", "--repeats", "1", "--widths", "3,5",
-               "--md", "3", "--json")
-    assert res.returncode == 0, res.stderr
-    meta = json.loads(res.stdout)["meta"]
+    assert _main("tradeoff", "--natoms", "256", "--repeats", "1", "--widths", "3,5",
+                 "--md", "3", "--json") == 0
+    meta = json.loads(capfd.readouterr().out)["meta"]
     assert meta["scene"] == "liquid"
     assert meta["cutoff"] == pytest.approx(2.5 * 3.405)
     assert "LennardJones" in meta["potential"]
     assert meta["skin"] == 1.0
     assert meta["md_steps"] == 3
     # Morse's default cutoff is ASE's, 2.7 r0
-    res = _cli("tradeoff", "--natoms", "256", "--repeats", "1", "--widths", "3",
-               "--potential", "morse", "--json")
-    assert res.returncode == 0, res.stderr
-    assert json.loads(res.stdout)["meta"]["cutoff"] == pytest.approx(2.7 * 2.55)
+    assert _main("tradeoff", "--natoms", "256", "--repeats", "1", "--widths", "3",
+                 "--potential", "morse", "--json") == 0
+    assert json.loads(capfd.readouterr().out)["meta"]["cutoff"] == pytest.approx(2.7 * 2.55)
 
 
-def test_tradeoff_bad_default_override_is_one_line():
-    res = _cli("tradeoff", "--sigma", "-1")
-    assert res.returncode == 2
-    assert len(res.stderr.strip().splitlines()) == 1 and "--sigma" in res.stderr
+def test_tradeoff_bad_default_override_is_one_line(capfd):
+    assert _main("tradeoff", "--sigma", "-1") == 2
+    err = capfd.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "--sigma" in err
 
 
 DEMO = ("demo", "--natoms", "256", "--steps", "20", "--md-steps", "10")
 
 
-def test_demo_draws_no_bars_into_a_pipe():
+def test_demo_draws_no_bars_into_a_pipe(capfd):
     """Exit status 0 (the demo's own checks passed: a failed verdict
     raises) and no progress bars (tqdm's or MDAnalysis's) when not a
     terminal."""
-    res = _cli(*DEMO)
-    assert res.returncode == 0, res.stderr
-    for stream in (res.stdout, res.stderr):
+    assert _main(*DEMO) == 0
+    out, err = capfd.readouterr()
+    assert "LJ argon liquid" in out  # the narration went to stdout
+    for stream in (out, err):
         assert "\r" not in stream and "%|" not in stream and "it/s" not in stream
 
 
-def test_demo_draws_progress_bars_on_a_terminal():
+# --------------------------------------------------------------------------
+# one smoke test per command: the installed script in a process of its own
+# --------------------------------------------------------------------------
+
+def _command():
+    """The installed ``ase-mlg`` script of this Python's environment (the
+    module where there is none, e.g. an uninstalled checkout)."""
+    exe = os.path.join(os.path.dirname(sys.executable), "ase-mlg")
+    return [exe] if os.path.isfile(exe) else [sys.executable, "-m", "ase_mlg.cli"]
+
+
+def _cli(*args, cwd, timeout=300):
+    """Run ``ase-mlg ARGS`` in ``cwd`` with output to pipes: not a terminal."""
+    return subprocess.run(_command() + list(args), capture_output=True, cwd=cwd,
+                          text=True, timeout=timeout, stdin=subprocess.DEVNULL)
+
+
+def _rdf_smoke():
+    from MDAnalysisTests import datafiles
+    return ("rdf", datafiles.PSF_TRICLINIC, datafiles.DCD_TRICLINIC, "--select", "name OH2",
+            "--exclude-self", "--rmax", "8", "--nbins", "16", "--stop", "3")
+
+
+def _rdf_ok(out):
+    rows = [line.split() for line in out.splitlines() if line and not line.startswith("#")]
+    return len(rows) == 16 and all(len(r) == 3 for r in rows)
+
+
+SMOKE = {  # command -> (its arguments, a check of its stdout)
+    "rdf": (_rdf_smoke, _rdf_ok),
+    "tradeoff": (lambda: ("tradeoff", "--natoms", "256", "--repeats", "1", "--widths", "3",
+                          "--json"),
+                 lambda out: json.loads(out)["meta"]["scene"] == "liquid"),
+    "info": (lambda: ("info",),
+             lambda out: out.startswith(f"ase-mlg {ase_mlg.__version__} ")
+             and "threading layer: " in out),
+}
+
+
+def test_every_command_has_a_smoke_test():
+    sub = next(a for a in _parser()._actions if a.dest == "command")
+    assert set(sub.choices) == set(SMOKE) | {"demo"}  # demo's: on a terminal, below
+
+
+@pytest.mark.parametrize("command", sorted(SMOKE))
+def test_installed_command_runs(command, tmp_path):
+    argv, ok = SMOKE[command]
+    res = _cli(*argv(), cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "Traceback" not in res.stderr
+    assert ok(res.stdout), res.stdout[-3000:]
+    assert list(tmp_path.iterdir()) == []  # it wrote no file
+
+
+def test_demo_draws_progress_bars_on_a_terminal(tmp_path):
+    """The demo's smoke test: the installed script on a terminal."""
     import pty
     import select
     import fcntl
@@ -192,7 +242,7 @@ def test_demo_draws_progress_bars_on_a_terminal():
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 30, 100, 0, 0))
     cmd = _command() + list(DEMO)
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=slave,
-                            stderr=slave, close_fds=True)
+                            stderr=slave, close_fds=True, cwd=tmp_path)
     os.close(slave)
     chunks = []
     while True:
@@ -218,3 +268,4 @@ def test_demo_draws_progress_bars_on_a_terminal():
     assert any(b.startswith("NVE MD (5 fs)") for b in bars)
     unlabelled = [b for b in bars if not b.startswith(("moving atoms", "NVE MD (5 fs)"))]
     assert len(unlabelled) >= 2
+    assert list(tmp_path.iterdir()) == []  # the demo's trajectory went with it

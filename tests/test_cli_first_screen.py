@@ -6,11 +6,12 @@ import io
 import os
 import re
 import shlex
-import subprocess
-import sys
 
 from ase_mlg.cli import _parser, main
 from ase_mlg.cli import tradeoff as cli_tradeoff
+
+# ``pytester`` runs a pytest session in this process
+pytest_plugins = ["pytester"]
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -42,11 +43,14 @@ def test_tradeoff_table_has_a_key():
         assert line.strip().startswith(head) and len(line.strip()) > len(head) + 10
 
 
-def test_pytest_says_what_it_does_before_the_first_dots():
-    res = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider",
-                          "--collect-only", "tests/test_layout.py"], cwd=ROOT,
-                         capture_output=True, text=True, timeout=300)
-    lines = res.stdout.splitlines()
-    assert res.returncode == 0, res.stdout + res.stderr
+def test_pytest_says_what_it_does_before_the_first_dots(pytester):
+    """The repository's own pytest configuration and conftest, in a session
+    run in this process (``pytester``: its output captured, its modules and
+    working directory restored)."""
+    res = pytester.runpytest_inprocess(
+        "-q", "-p", "no:cacheprovider", "--collect-only", f"--rootdir={ROOT}",
+        "-c", os.path.join(ROOT, "pyproject.toml"), os.path.join(ROOT, "tests", "test_layout.py"))
+    lines = res.outlines
+    assert res.ret == 0, "\n".join(res.outlines + res.errlines)
     assert lines[0].startswith("ase-mlg: collecting") and "compile" in lines[0]
     assert any(line.startswith("ase-mlg:") and "collected in" in line for line in lines)

@@ -5,19 +5,24 @@ and ``bad_input_cases.py`` runs here as ``test_extreme``, plus hypothesis
 property tests against ``ase.neighborlist.neighbor_list`` and
 ``ase.calculators.lj.LennardJones``.  ``validation/extremes.py`` runs
 ``test_extreme`` and writes what each case measured to
-``validation/reports/extremes.md``.  Known failures in modules this suite may
-not edit are ``xfail(strict=True)`` so that they turn red when fixed.
+``validation/reports/extremes.md``.
 """
 
+import contextlib
+import io
 import math
 import os
 import subprocess
 import sys
+import tempfile
+import threading
+import traceback
+import warnings
 
 import numpy as np
 import pytest
 from ase import Atoms
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from ase_mlg import MLG, MLGCalculator, NeighborList, neighbor_list
@@ -29,24 +34,73 @@ import extreme_cases as E
 os.environ.setdefault("EXTREMES_BIG_N", "108000")
 
 CHECKS = E.CHECKS + bad_input_cases.CHECKS
-XFAIL = E.KNOWN_FAILURES  # name -> reason (module this suite may not edit)
 
 
-def _params():
-    out = []
-    for group, name, f in CHECKS:
-        marks = []
-        if name in XFAIL:
-            marks.append(pytest.mark.xfail(strict=True, reason=XFAIL[name]))
-        out.append(pytest.param(group, name, f, id=f"{group}: {name}", marks=marks))
-    return out
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    (file or sys.stderr).write(warnings.formatwarning(message, category, filename, lineno,
+                                                      line))
 
 
-@pytest.mark.parametrize("group,name,check", _params())
-def test_extreme(group, name, check, record_property):
+def cli_here(args, timeout=60):
+    """``ase-mlg ARGS`` in this process, as ``bad_input_cases.run_cli``
+    runs it in a new one: :func:`ase_mlg.cli.main` on a thread (a hang
+    raises ``TimeoutExpired`` after ``timeout`` s), its stdout and stderr
+    captured; warnings print to stderr under Python's default filters, and
+    an exception that escapes ``main`` prints its traceback, exit status 1,
+    as the interpreter would."""
+    from ase_mlg.cli import main
+    out, err = io.StringIO(), io.StringIO()
+    status = []
+
+    def run():
+        try:
+            status.append(main(list(args)))
+        except SystemExit as exc:
+            if isinstance(exc.code, str):
+                print(exc.code, file=err)
+            status.append(exc.code if isinstance(exc.code, int) else int(exc.code is not None))
+        except BaseException:
+            err.write(traceback.format_exc())
+            status.append(1)
+
+    with warnings.catch_warnings(), contextlib.redirect_stdout(out), \
+            contextlib.redirect_stderr(err):
+        warnings.resetwarnings()  # a fresh interpreter's filters
+        for action, category in (("default", DeprecationWarning), ("ignore", DeprecationWarning),
+                                 ("ignore", PendingDeprecationWarning),
+                                 ("ignore", ImportWarning), ("ignore", ResourceWarning)):
+            warnings.filterwarnings(action, category=category,
+                                    module="__main__" if action == "default" else "",
+                                    append=True)
+        warnings.showwarning = _show_warning
+        worker = threading.Thread(target=run, daemon=True)
+        worker.start()
+        worker.join(timeout)
+    if worker.is_alive():
+        raise subprocess.TimeoutExpired(["ase-mlg", *args], timeout)
+    return subprocess.CompletedProcess(["ase-mlg", *args], status[0], out.getvalue(),
+                                       err.getvalue())
+
+
+def test_cli_here_reports_like_a_process():
+    r = cli_here(["demo", "--natoms", "0"])
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.startswith("ase-mlg demo: error: argument --natoms")
+    r = cli_here(["--version"])
+    assert r.returncode == 0 and r.stdout.startswith("ase-mlg ") and r.stderr == ""
+
+
+@pytest.mark.parametrize("group,name,check",
+                         [pytest.param(group, name, f, id=f"{group}: {name}")
+                          for group, name, f in CHECKS])
+def test_extreme(group, name, check, record_property, monkeypatch, tmp_path):
     """One extreme case; ``validation/extremes.py`` reads the recorded
-    ``extreme`` (group, name) and ``result`` (what it measured)."""
+    ``extreme`` (group, name) and ``result`` (what it measured).  The
+    command-line cases run ``ase-mlg`` in this process (:func:`cli_here`),
+    and temporary files go to this test's directory."""
     record_property("extreme", (group, name))
+    monkeypatch.setattr(bad_input_cases, "run_cli", cli_here)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     res = check()
     record_property("result", res)
     assert res.startswith("pass") or res.startswith("clear error"), res
@@ -95,12 +149,13 @@ def test_faces_far_and_offsets_match_ase(pos, pbc, cutoff, wraps, offset):
        pbc=st.tuples(st.booleans(), st.booleans(), st.booleans()))
 def test_oblique_cells_match_ase(alpha, beta, gamma, seed, cutoff, pbc):
     from ase.geometry import cellpar_to_cell
-    try:
-        cell = cellpar_to_cell([5, 6, 7, alpha, beta, gamma])
-    except AssertionError:
-        return  # angles that do not make a cell
-    if abs(np.linalg.det(cell)) < 1.0:
-        return
+    # (V / abc)^2 of the cell: > 0 exactly when the angles make one; the
+    # cells drawn have a volume of at least 1 A^3 (V = 210 A^3 sqrt(vf))
+    ca, cb, cg = (math.cos(math.radians(x)) for x in (alpha, beta, gamma))
+    vf = 1 - ca * ca - cb * cb - cg * cg + 2 * ca * cb * cg
+    assume(vf > (1 / 210) ** 2)
+    cell = cellpar_to_cell([5, 6, 7, alpha, beta, gamma])  # a cell: no error
+    assert abs(np.linalg.det(cell)) == pytest.approx(210 * math.sqrt(vf), rel=1e-9)
     rng = np.random.default_rng(seed)
     at = Atoms("Ar10", scaled_positions=rng.random((10, 3)), cell=cell, pbc=pbc)
     E.compare_nl(at, cutoff)
@@ -193,7 +248,5 @@ def test_float32_energy_equals_float64_of_same_values():
 
 
 def test_cli_timeouts_do_not_hang():
-    r = subprocess.run([sys.executable, "-m", "ase_mlg.cli", "rdf", "/no/such.xyz"],
-                       capture_output=True, text=True, timeout=60,
-                       env=E.subprocess_env())
+    r = cli_here(["rdf", "/no/such.xyz"], timeout=60)
     assert r.returncode != 0 and len(r.stderr.strip().splitlines()) == 1

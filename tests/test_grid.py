@@ -310,16 +310,21 @@ def test_bad_arguments():
 
 
 @pytest.mark.parametrize("pbc", [True, (True, False, True), False])
-def test_sweeps_equal_boris_phase_order_serial_and_threaded(pbc, monkeypatch):
+@pytest.mark.parametrize("natoms", [6000, 34000], ids=["serial", "threaded"])
+def test_sweeps_equal_boris_phase_order_serial_and_threaded(pbc, natoms):
     """The line-wise passes that skip lines in order give bit for bit the
-    phase-by-phase sweeps of Boris 1985 sec. III, on the serial path and on
-    the threaded one."""
+    phase-by-phase sweeps of Boris 1985 sec. III, on the serial path (a grid
+    below the "sites" threshold) and on the threaded one (above it, on one
+    thread and on all)."""
+    import numba
+
     from ase_mlg import sweeps as SW
-    from ase_mlg.parallel import THRESHOLDS
-    atoms = random_points(6000, 0.8, seed=11)
+    from ase_mlg.parallel import use_threads
+    atoms = random_points(natoms, 0.8, seed=11)
     grid = MLG(atoms.positions, atoms.cell.array, pbc)
+    assert use_threads("sites", grid._sites.size) == (natoms > 6000)
     rng = np.random.default_rng(0)
-    x = atoms.positions + rng.normal(scale=0.4, size=(6000, 3))
+    x = atoms.positions + rng.normal(scale=0.4, size=(natoms, 3))
     g = grid.box.fractional(x) * grid.box.heights
     occ = grid._sites >= 0
     coords = grid._coords.copy()
@@ -327,12 +332,16 @@ def test_sweeps_equal_boris_phase_order_serial_and_threaded(pbc, monkeypatch):
     shape = np.array(grid.shape)
     ref = naive.sweeps(grid._sites, coords, shape, grid._periods, 64)
     assert ref[2] > 2 and ref[3] > 100
-    for threshold in (10 ** 9, 1):  # serial, then threaded kernels
-        monkeypatch.setitem(THRESHOLDS, "sites", threshold)
-        sites, c = grid._sites.copy(), coords.copy()
-        nsweep, nswap, ok = SW.sweep(sites, c, shape, grid._periods, 64)
-        assert ok and (nsweep, nswap) == ref[2:]
-        assert np.array_equal(sites, ref[0]) and np.array_equal(c, ref[1])
+    old = numba.get_num_threads()
+    try:
+        for threads in sorted({1, old}):
+            numba.set_num_threads(threads)
+            sites, c = grid._sites.copy(), coords.copy()
+            nsweep, nswap, ok = SW.sweep(sites, c, shape, grid._periods, 64)
+            assert ok and (nsweep, nswap) == ref[2:]
+            assert np.array_equal(sites, ref[0]) and np.array_equal(c, ref[1])
+    finally:
+        numba.set_num_threads(old)
 
 
 def test_periodic_run_stays_flat():

@@ -218,20 +218,21 @@ def test_large_liquid_against_ase_and_threads():
 
 
 @pytest.mark.parametrize("guess", [None, 0.01, 1e3])
-def test_threaded_build_and_short_guess_give_one_list(guess, monkeypatch):
-    """Above the threading threshold (grid build, block gather, scan, full
-    list on threads): the list is bitwise the one of a serial run, also when
-    the room guess is short (chunks scan on into new room) or long."""
+def test_threaded_build_and_short_guess_give_one_list(guess):
+    """Above the "atoms" threading threshold (grid build, block gather,
+    scan, full list on threads): the list on all threads is bitwise the one
+    on one thread, also when the room guess is short (chunks scan on into
+    new room) or long."""
     import numba
 
-    from ase_mlg import parallel
+    from ase_mlg.parallel import use_threads
     from ase_mlg.query import CUT_SCALAR, half_list
     rng = np.random.default_rng(5)
     n = 6000
+    assert use_threads("atoms", n)
     L = (n / 0.02) ** (1 / 3)
     atoms = ase.Atoms(f"Ar{n}", positions=rng.random((n, 3)) * L,
                       cell=[L, L * 1.1, L * 0.9], pbc=True)
-    monkeypatch.setitem(parallel.THRESHOLDS, "atoms", 1000)
     old = numba.get_num_threads()
     try:
         runs = []
@@ -394,7 +395,7 @@ def test_neighborlist_keeps_one_grid():
         rebuilt += nlist.update(atoms)
     assert rebuilt >= 2
     assert nlist.nl.grid is grid  # maintained by swap sweeps, not rebuilt
-    assert nlist.nl.nl_grid_updates == rebuilt
+    assert nlist.nl.verlet_list.stats["grid_updates"] == rebuilt
     atoms.set_cell(atoms.cell * 1.01, scale_atoms=True)
     assert nlist.update(atoms)
     assert nlist.nl.grid is not grid  # new cell: new grid

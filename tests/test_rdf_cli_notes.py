@@ -2,14 +2,14 @@
 note when bin 0 counted self pairs (InterRDF's default, kept) and how to
 drop them; one line per file it wrote."""
 
-import argparse
 import io
 
 import numpy as np
 import pytest
 from MDAnalysisTests import datafiles
 
-from ase_mlg.cli.rdf import add_parser, run
+from ase_mlg.cli import _parser, main
+from ase_mlg.cli.rdf import run
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")
 
@@ -18,12 +18,13 @@ WATER = [datafiles.PSF_TRICLINIC, datafiles.DCD_TRICLINIC, "--rmax", "8",
 
 
 def parse(argv):
-    parser = argparse.ArgumentParser(prog="ase-mlg")
-    add_parser(parser.add_subparsers(dest="command"))
-    return parser.parse_args(["rdf"] + argv)
+    """``ase-mlg rdf ARGV`` as the command line parses it."""
+    return _parser().parse_args(["rdf"] + argv)
 
 
 def rdf(argv, capsys):
+    """What ``ase-mlg rdf`` (``ase_mlg.cli.main``'s ``rdf`` branch) does, in
+    this process: the RDF it ran, its table and its stderr."""
     out = io.StringIO()
     r = run(parse(WATER + argv), out=out)
     return r, out.getvalue(), capsys.readouterr().err
@@ -61,8 +62,9 @@ def test_overlapping_groups_get_the_note_without_exclude_self(capsys):
 
 def test_written_files_are_said(tmp_path, capsys):
     table, png = tmp_path / "g.txt", tmp_path / "g.png"
-    _, out, err = rdf(["--select", "name OH2", "--exclude-self", "--output", str(table),
-                       "--plot", str(png)], capsys)
+    assert main(["rdf", *WATER, "--select", "name OH2", "--exclude-self",
+                 "--output", str(table), "--plot", str(png)]) == 0
+    out, err = capsys.readouterr()
     assert out == "" and table.exists() and png.exists()
     lines = err.strip().splitlines()
     assert f"wrote {table} (16 rows" in lines[-2]

@@ -6,6 +6,7 @@ import os
 import re
 import sys
 import tomllib
+from pathlib import Path
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -46,17 +47,44 @@ def test_oldest_pins_are_the_declared_minimums():
         if extra == "[distributed]":
             assert _same(pins["distributed"], minimum)
     # the Python minimum is the one CI runs (python3 of this machine) or lower
-    py = meta["requires-python"]
-    assert py == ">=3.11"
-    assert sys.version_info >= (3, 11)
+    assert sys.version_info[:2] >= _python_minimum(meta)
     assert set(pins) <= set(declared) | {"distributed"}
 
 
+def _python_minimum(meta):
+    m = re.fullmatch(r">=(\d+)\.(\d+)", meta["requires-python"])
+    assert m, f"requires-python {meta['requires-python']!r}: a >= X.Y minimum"
+    return int(m.group(1)), int(m.group(2))
+
+
+def test_readme_names_the_oldest_versions():
+    """The README's list of the oldest versions CI runs ("(`.ci/oldest.txt`:
+    Python 3.11, ASE 3.29, ...)") is .ci/oldest.txt's pins and the declared
+    Python minimum."""
+    meta, _ = _declared()
+    pins = _pins()
+    text = " ".join(open(os.path.join(ROOT, "README.md"), encoding="utf-8").read().split())
+    m = re.search(r"\(`\.ci/oldest\.txt`: ([^);]*)[);]", text)
+    assert m, "README: the oldest versions, after `.ci/oldest.txt`:"
+    named = dict(item.rsplit(" ", 1) for item in m.group(1).split(", "))
+    assert named.pop("Python") == "%d.%d" % _python_minimum(meta)
+    assert len(named) >= 5
+    for name, version in named.items():
+        assert name.lower() in pins, f"README names {name}, not pinned in .ci/oldest.txt"
+        assert _same(pins[name.lower()], version), f"{name}: README {version}, pinned {pins[name.lower()]}"
+
+
 def test_ase_minimum_is_needed():
-    """The code needs ASE 3.29's thermalize_momenta: the declared minimum
-    is not lower than that."""
-    import ase
+    """The code needs ASE 3.29's thermalize_momenta (new in 3.29): the
+    package imports it, and the declared minimum is not lower than 3.29."""
+    import ast
     from ase.md.velocitydistribution import thermalize_momenta  # noqa: F401
+    users = []
+    for path in sorted(Path(ROOT, "ase_mlg").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if (isinstance(node, ast.ImportFrom) and node.module == "ase.md.velocitydistribution"
+                    and "thermalize_momenta" in {a.name for a in node.names}):
+                users.append(path.name)
+    assert users, "nothing imports thermalize_momenta: is ASE 3.29 still the minimum?"
     _, declared = _declared()
     assert tuple(int(x) for x in declared["ase"][0].split(".")[:2]) >= (3, 29)
-    assert tuple(int(x) for x in ase.__version__.split(".")[:2]) >= (3, 29)

@@ -39,7 +39,7 @@ def _warm_grid(atoms, step_rms, seed):
     return time.perf_counter() - t0
 
 
-def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
+def demo(natoms=4000, steps=500, seed=0, out=None, md_steps=200):
     """Build the MLG of an argon liquid, move the atoms, report sweeps and
     template quality.
 
@@ -52,8 +52,9 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
         0.02 mean spacings rms per step, unwrapped across periodic faces).
     seed : int
         Random seed of the liquid, the motion and the momenta.
-    out : file
-        Where the narration goes (progress bars only if it is a terminal).
+    out : file, optional
+        Where the narration goes (default: ``sys.stdout`` at the call);
+        progress bars only if it is a terminal.
     md_steps : int
         Steps of NVE molecular dynamics with MLGCalculator (0 skips it).
 
@@ -75,6 +76,8 @@ def demo(natoms=4000, steps=500, seed=0, out=sys.stdout, md_steps=200):
     from ..grid import MLG
     from ..template import template_pairs
     from ..scenes import SIGMA_AR, PersistentWalk, lj_liquid
+
+    out = sys.stdout if out is None else out
 
     def say(*a):
         print(*a, file=out, flush=True)
