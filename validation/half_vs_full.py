@@ -19,6 +19,7 @@ from numba import prange
 
 from ase_mlg import MLG
 from ase_mlg.blocks import BlockIndex
+from ase_mlg.partition import row_chunks
 from ase_mlg.potentials import LennardJones
 from ase_mlg.query import half_list
 
@@ -114,10 +115,11 @@ def main():
         n = len(atoms)
         pl, X, svec, types = calculator_list(atoms, pot)
         half = {}
+        chunks = row_chunks(pl.rowptr, pl.nbr, nth)
 
         def run_half():
             half.update(pot.sum_pairs(X, types, pl.rowptr, pl.nbr, pl.code, svec,
-                                      pl.order, virial=False, threads=nth))
+                                      pl.order, virial=False, chunks=chunks))
 
         rowptr, nbr, code = full_from_half(pl)
         rows = np.searchsorted(rowptr, np.linspace(0, rowptr[-1], nth + 1)).astype(np.int64)
