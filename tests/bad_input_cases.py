@@ -282,7 +282,3 @@ for _args, _words in CLI_CASES:
     check("bad input", "CLI: ase-mlg " + " ".join(a.strip("@").lower() if a.startswith("@") else a
                                                   for a in _args))(
         (lambda a, w: lambda: cli_case(a, w))(_args, _words))
-
-
-# Known failures in modules the owner of this file may not edit; in
-# tests/test_extremes.py they are xfail(strict=True) with these reasons.
