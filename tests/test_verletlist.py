@@ -1,0 +1,176 @@
+"""The VerletList: its contract against brute force (tests/naive.py).
+
+* After every ``update`` the list holds every pair within ``cutoff`` of the
+  current positions (the Verlet guarantee), under moves and under NVE and
+  NPT-like cell changes, whether it rebuilt or not.
+* It rebuilds exactly when its test says so: a move past ``skin / 2``, a
+  strain the skin cannot cover, other numbers, pbc or number of atoms;
+  ``version`` counts the builds.
+* The row partition belongs to one list: a new build gives a new one.
+"""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from ase_mlg.verletlist import VerletList
+from naive import pairs as naive_pairs
+
+RC, SKIN = 3.0, 0.6
+
+
+def _liquid(n, box, seed):
+    rng = np.random.default_rng(seed)
+    return rng.uniform(0, box, size=(n, 3)), np.eye(3) * box
+
+
+def _held(vl, positions, cell):
+    """The list's unordered pairs as a set of (i, j, S) with i <= j side
+    chosen canonically, at the list's current positions."""
+    res = vl.arrays(half=True, quantities="ijS")
+    got = set()
+    for i, j, S in zip(res["i"], res["j"], res["S"]):
+        S = tuple(int(s) for s in S)
+        a, b = (int(i), int(j), S), (int(j), int(i), tuple(-s for s in S))
+        got.add(min(a, b))
+    return got
+
+
+def _within(positions, cell, pbc, cutoff):
+    ref = naive_pairs(positions, cell, pbc, cutoff)
+    return {min(k, (k[1], k[0], tuple(-s for s in k[2]))) for k in ref}
+
+
+def _assert_holds_within_cutoff(vl, positions, cell, pbc):
+    """Every pair within RC of ``positions`` is in the list (the list was
+    built at other positions: compare pairs by (i, j, S) and the distance
+    at the current positions)."""
+    pl = vl.pairs
+    t = np.repeat(np.arange(pl.natoms), np.diff(pl.rowptr))
+    # the list's pairs at the current positions: X is this update's
+    d = np.linalg.norm(vl.X[pl.nbr] - vl.X[t] + vl.svec[pl.code], axis=1)
+    images = pl.images
+    S = pl.shifts[pl.code] + images[pl.nbr] - images[t]
+    i, j = pl.order[t], pl.order[pl.nbr]
+    held = {min((int(a), int(b), tuple(map(int, s))), (int(b), int(a), tuple(-int(x) for x in s)))
+            for a, b, s in zip(i, j, S)}
+    need = _within(positions, cell, pbc, RC)
+    assert need <= held, sorted(need - held)[:5]
+    # and the distances the kernel sees are the current ones
+    ref = naive_pairs(positions, cell, pbc, RC + SKIN + 2.0)
+    for a, b, s, dist in list(zip(i, j, S, d))[:200]:
+        assert dist == pytest.approx(ref[(int(a), int(b), tuple(map(int, s)))][0], abs=1e-9)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10**6), npt=st.booleans(), steps=st.integers(1, 8))
+def test_every_pair_within_the_cutoff_after_every_update(seed, npt, steps):
+    pos, cell = _liquid(60, 9.0, seed)
+    pbc = np.array([True, True, True])
+    vl = VerletList.allocate(pos, cell, pbc, RC, skin=SKIN)
+    rng = np.random.default_rng(seed + 1)
+    builds = []
+    for _ in range(steps):
+        pos = pos + rng.normal(scale=0.12, size=pos.shape)
+        if npt:
+            strain = np.eye(3) + rng.normal(scale=0.01, size=(3, 3))
+            pos, cell = pos @ strain, cell @ strain
+        builds.append(vl.update(pos, cell, pbc))
+        _assert_holds_within_cutoff(vl, pos, cell, pbc)
+    assert vl.version == sum(builds)
+    assert vl.stats["list_builds"] == 1 + sum(builds)
+
+
+def test_rebuilds_exactly_past_half_the_skin():
+    pos, cell = _liquid(80, 10.0, 3)
+    pbc = [True] * 3
+    vl = VerletList.allocate(pos, cell, pbc, RC, skin=SKIN)
+    assert vl.version == 0
+    moved = pos.copy()
+    moved[7] += [0.999 * SKIN / 2, 0, 0]
+    assert vl.update(moved, cell, pbc) is False and vl.version == 0
+    moved[7] = pos[7] + [1.001 * SKIN / 2, 0, 0]
+    assert vl.update(moved, cell, pbc) is True and vl.version == 1
+    # the new reference: the same positions again keep it
+    assert vl.update(moved, cell, pbc) is False and vl.version == 1
+
+
+def test_strain_the_skin_cannot_cover_rebuilds():
+    pos, cell = _liquid(80, 10.0, 4)
+    pbc = [True] * 3
+    vl = VerletList.allocate(pos, cell, pbc, RC, skin=SKIN)
+    # an affine change alone: valid while smin(M) (rc + skin) > rc
+    small = np.diag([1.0, 1.0, 1.0 - 0.5 * SKIN / (RC + SKIN)])
+    assert vl.update(pos @ small, cell @ small, pbc) is False
+    big = np.diag([1.0, 1.0, 1.0 - 1.5 * SKIN / (RC + SKIN)])
+    assert vl.update(pos @ big, cell @ big, pbc) is True
+
+
+@pytest.mark.parametrize("change", ["numbers", "pbc", "natoms"])
+def test_other_system_rebuilds(change):
+    pos, cell = _liquid(40, 8.0, 5)
+    numbers = np.full(40, 18)
+    vl = VerletList.allocate(pos, cell, [True] * 3, RC, numbers=numbers, skin=SKIN,
+                             types=lambda z: (z == 36).astype(np.int32))
+    assert vl.update(pos, cell, [True] * 3, numbers) is False
+    if change == "numbers":
+        numbers = numbers.copy()
+        numbers[3] = 36
+        assert vl.update(pos, cell, [True] * 3, numbers) is True
+        assert vl.types[np.flatnonzero(vl.pairs.order == 3)[0]] == 1
+    elif change == "pbc":
+        assert vl.update(pos, cell, [True, True, False], numbers) is True
+    else:
+        assert vl.update(pos[:-1], cell, [True] * 3, numbers[:-1]) is True
+        assert vl.pairs.natoms == 39
+    assert vl.version == 1
+
+
+def test_skin_zero_rebuilds_every_update_and_closed_keeps_the_cutoff():
+    # two atoms exactly rc apart: ASE's potentials keep d == rc
+    pos = np.array([[0.0, 0.0, 0.0], [RC, 0.0, 0.0]])
+    cell = np.eye(3) * 20.0
+    for closed, expected in ((True, 1), (False, 0)):
+        vl = VerletList.allocate(pos, cell, [False] * 3, RC, skin=0.0, closed=closed)
+        assert len(vl.pairs) == expected
+        assert vl.update(pos, cell, [False] * 3) is True
+    assert vl.version == 1
+
+
+def test_row_partition_belongs_to_one_list():
+    pos, cell = _liquid(200, 12.0, 6)
+    vl = VerletList.allocate(pos, cell, [True] * 3, RC, skin=SKIN)
+    p1 = vl.row_partition(2)
+    assert vl.row_partition(2) is p1
+    assert vl.row_partition(1) is not p1
+    assert vl.row_partition(1).nchunk == 1
+    vl.build(pos, cell, [True] * 3)
+    assert vl.row_partition(1) is not p1
+    rows = vl.row_partition(2).arrays.rows
+    assert rows[0] == 0 and rows[-1] == vl.pairs.natoms
+
+
+def test_radii_and_cutoff_setter_match_brute_force():
+    pos, cell = _liquid(50, 8.0, 7)
+    pbc = [True, False, True]
+    radii = np.random.default_rng(8).uniform(0.5, 1.5, 50)
+    vl = VerletList.allocate(pos, cell, pbc, radii, block=2, follow_cell=False)
+    assert _held(vl, pos, cell) == _within(pos, cell, pbc, radii[:, None] + radii[None, :])
+    exact = VerletList.allocate(pos, cell, pbc, 2.0, block=2, follow_cell=False)
+    exact.cutoff = 2.7
+    assert exact.pairs is None  # a new radius drops the list
+    exact.build(pos, cell, pbc)
+    assert _held(exact, pos, cell) == _within(pos, cell, pbc, 2.7)
+    with pytest.raises(ValueError, match="template"):
+        VerletList(radii, template=3)
+    with pytest.raises(ValueError, match="skin"):
+        VerletList(RC, skin=-1.0)
+
+
+def test_an_atom_sent_flying_is_named():
+    pos, cell = _liquid(40, 8.0, 9)
+    vl = VerletList.allocate(pos, cell, [True] * 3, RC, skin=SKIN)
+    far = pos.copy()
+    far[11] += 1e6
+    with pytest.raises(ValueError, match=r"atom\(s\) \[11\]"):
+        vl.update(far, cell, [True] * 3)
