@@ -22,6 +22,9 @@ compare.
   docs/design.md §6); ``template=W`` from Boris's W x W x W half template
   (:mod:`ase_mlg.template`, approximate, docs/design.md §7).
 
+The design, with the validity bound's proof, is docs/design.md §6, "The list
+kept across calls".
+
 The calculator (:class:`ase_mlg.MLGCalculator`), the neighbour-list classes
 (:mod:`ase_mlg.neighborlist`) and the RDFs' pair source
 (:mod:`ase_mlg.analysis.pairs`) are its users.
@@ -280,8 +283,8 @@ class VerletList:
         # test's reference too (never written: each call gathers anew)
         self.X = self._ref = pl.positions(positions, cell)
         self.svec = shift_vectors(pl.shifts, cell)
-        if self.width is not None:
-            pl.partition(self.X, self.svec, self.cutoff)  # the scan ordered its own
+        if self.width is not None and self.rlist != self.cutoff:
+            pl.partition(self.X, self.svec, self.cutoff)  # the scan orders its own
         if self._types_of is not None:
             self.types = np.ascontiguousarray(self._types_of(numbers)[pl.order])
         self._numbers = None if numbers is None else np.array(numbers, copy=True)
@@ -310,6 +313,5 @@ class VerletList:
         """The list as ``ase.neighborlist`` returns it, at the positions
         and cell of the last build (see :meth:`ase_mlg.pairlist.PairList.arrays`)."""
         grid = self.grid
-        extra = {} if orient is None else {"orient": orient}
         return self.pairs.arrays(grid.positions, np.ascontiguousarray(grid.box.full),
-                                 half=half, quantities=quantities, **extra)
+                                 half=half, quantities=quantities, orient=orient)
