@@ -26,8 +26,12 @@ __all__ = ["PairList", "ListArrays", "PairOutput", "Orientation", "pair_vector",
 NGROUP = 8  # row groups of full lists: fixed, so the output never depends on threads
 
 #: The arrays of a :class:`PairList`, as its kernels read them (the
-#: attributes of the same names; ``zero_code`` an int).
-ListArrays = namedtuple("ListArrays", "rowptr nbr code zero_code shifts images order")
+#: attributes of the same names; ``zero_code`` an int).  The image codes go
+#: beside it as an argument of their own: their dtype (uint8 or int32)
+#: depends on the number of images, and numba 0.59 dispatches a namedtuple
+#: of four or more fields whose field types vary between calls to the wrong
+#: overload (tests/test_kernel_structures.py keeps every structure to one type).
+ListArrays = namedtuple("ListArrays", "rowptr nbr zero_code shifts images order")
 
 #: The output arrays of :meth:`PairList.arrays` (``out_i`` int64[M], ``out_j``
 #: int64[M], ``out_d`` float64[M], ``out_D`` float64[M, 3], ``out_S``
@@ -99,9 +103,9 @@ class PairList:
 
     @property
     def list_arrays(self):
-        """The list's arrays as one :data:`ListArrays` (the arrays
-        themselves, not copies), as the kernels take them."""
-        return ListArrays(self.rowptr, self.nbr, self.code, self.zero_code,
+        """The list's arrays but the codes as one :data:`ListArrays` (the
+        arrays themselves, not copies), as the kernels take them."""
+        return ListArrays(self.rowptr, self.nbr, self.zero_code,
                           self.shifts, self.images, self.order)
 
     def positions(self, positions, cell):
@@ -207,11 +211,11 @@ class PairList:
             # at the atom it is written at
             cur = np.zeros((ngroup, n), dtype=np.int64)
             if mode == _FULL:
-                run_chunks(_count_full, lambda g: (pl, rows[g], rows[g + 1], cur[g]),
+                run_chunks(_count_full, lambda g: (pl, self.code, rows[g], rows[g + 1], cur[g]),
                            ngroup, nth)
             else:
-                run_chunks(_count_oriented, lambda g: (pl, orient, rows[g], rows[g + 1],
-                                                       cur[g]), ngroup, nth)
+                run_chunks(_count_oriented, lambda g: (pl, self.code, orient, rows[g],
+                                                       rows[g + 1], cur[g]), ngroup, nth)
             start = np.zeros(n + 1, dtype=np.int64)
             run_chunks(_atom_totals, lambda g: (cur, pl.order, rows[g], rows[g + 1],
                                                 start), ngroup, nth)
@@ -228,8 +232,8 @@ class PairList:
         out = PairOutput(res["i"], arr["j"], arr["d"], arr["D"], arr["S"], want["j"],
                          want["d"], want["D"], want["S"])
         run_chunks(_write_pairs,
-                   lambda g: (pl, X, cell, rows[g], rows[g + 1], mode, orient, cur[g],
-                              out), ngroup, nth)
+                   lambda g: (pl, self.code, X, cell, rows[g], rows[g + 1], mode, orient,
+                              cur[g], out), ngroup, nth)
         return res
 
 
@@ -338,12 +342,11 @@ _partition_serial, _partition_threaded = serial_and_parallel(_partition_rows)
 
 
 @njit(cache=True, nogil=True)
-def _count_full(lists, r0, r1, cnt):
+def _count_full(lists, code, r0, r1, cnt):
     """Pairs each rank gets from rows [r0, r1) of a half list written at
     both atoms (the mirror of a self pair (i, i, 0) is itself)."""
     rowptr = lists.rowptr
     nbr = lists.nbr
-    code = lists.code
     zero_code = lists.zero_code
     for t in range(r0, r1):
         cnt[t] += rowptr[t + 1] - rowptr[t]
@@ -387,13 +390,12 @@ def _oriented(offsets, basis, a, j, S0, S1, S2):
 
 
 @njit(cache=True, nogil=True)
-def _count_oriented(lists, orient, r0, r1, cnt):
+def _count_oriented(lists, code, orient, r0, r1, cnt):
     """Pairs each rank gets from rows [r0, r1) of the half list oriented by
     ``orient`` (see :func:`_oriented`): a pair kept as it is counts at its
     row, one kept as its mirror at its neighbour."""
     rowptr = lists.rowptr
     nbr = lists.nbr
-    code = lists.code
     zero_code = lists.zero_code
     shifts = lists.shifts
     images = lists.images
@@ -454,7 +456,7 @@ def _put(out, q, i, j, d, Dx, Dy, Dz, S0, S1, S2):
 
 
 @njit(cache=True, nogil=True)
-def _write_pairs(lists, X, cell, r0, r1, mode, orient, cur, out):
+def _write_pairs(lists, code, X, cell, r0, r1, mode, orient, cur, out):
     """Write the pairs of rows [r0, r1) with D, d, S computed as ASE does.
 
     ``mode`` _FULL: each pair at both atoms, at the cursors ``cur[rank]``;
@@ -466,7 +468,6 @@ def _write_pairs(lists, X, cell, r0, r1, mode, orient, cur, out):
     already writes)."""
     rowptr = lists.rowptr
     nbr = lists.nbr
-    code = lists.code
     zero_code = lists.zero_code
     shifts = lists.shifts
     images = lists.images

@@ -11,11 +11,12 @@ same chunks give the same bits (docs/design.md §8).
 
 The module's vocabulary
 -----------------------
-The kernel takes four named structures (numba reads their fields by name;
-the kernel copies them to locals before its ``prange`` loops, which numba's
-parallel lowering needs):
+The kernel takes four named structures and the pairs' image codes (numba
+reads the fields by name; the kernel copies them to locals before its
+``prange`` loops, which numba's parallel lowering needs):
 
-* :class:`SumList` -- the half list and the positions in row order;
+* :class:`SumList` -- the half list and the positions in row order (the
+  codes, whose dtype varies, beside it);
 * :class:`SumTables` -- the potential's tables and what to accumulate;
 * :class:`ase_mlg.partition.Chunks` -- the chunks of rows and their windows;
 * :class:`SumOutputs` -- the chunk buffers and the per-atom outputs.
@@ -66,12 +67,15 @@ class PairError(enum.IntEnum):
 
 #: The list side of a pair sum: ``X`` float64[N, 3] (positions in row
 #: order, Å), ``types`` int32[N] (type index of each row), ``rowptr``
-#: int64[N + 1], ``nbr`` int32[M], ``code`` uint8[M] or int32[M] (the half
-#: list: pairs ``(t, nbr[q])`` for ``q`` in ``rowptr[t]:rowptr[t + 1]``,
-#: ``D = X[nbr[q]] - X[t] + svec[code[q]]``), ``svec`` float64[K, 3]
-#: (Cartesian cell shift of every code, Å), ``order`` int64[N] (the atom of
-#: each row).
-SumList = namedtuple("SumList", "X types rowptr nbr code svec order")
+#: int64[N + 1], ``nbr`` int32[M] (the half list: pairs ``(t, nbr[q])`` for
+#: ``q`` in ``rowptr[t]:rowptr[t + 1]``, ``D = X[nbr[q]] - X[t] +
+#: svec[code[q]]``), ``svec`` float64[K, 3] (Cartesian cell shift of every
+#: image code, Å), ``order`` int64[N] (the atom of each row).  The codes,
+#: uint8[M] or int32[M], go beside it as an argument of their own: numba
+#: 0.59 dispatches a namedtuple of four or more fields whose field types vary
+#: between calls to the wrong overload (tests/test_kernel_structures.py
+#: keeps every structure to one type).
+SumList = namedtuple("SumList", "X types rowptr nbr svec order")
 
 #: The potential side of a pair sum: ``squared`` (bool: the pair function
 #: takes ``r**2`` and returns ``(e, dE/dr / r)``: no square root, one
@@ -98,7 +102,7 @@ SumOutputs = namedtuple("SumOutputs",
                         "fbuf ebuf vbuf part forces energies virials")
 
 
-def _pair_sum(pair, lst, pot, chunks, out):
+def _pair_sum(pair, lst, code, pot, chunks, out):
     """Energy, forces and virials of a half pair list, one fused pass.
 
     The pair function is a compile-time argument (a numba dispatcher), so it
@@ -116,6 +120,8 @@ def _pair_sum(pair, lst, pot, chunks, out):
     pair : numba function ``(r, p) -> (e, dE/dr)``
         Or ``(r**2, p) -> (e, dE/dr / r)`` with ``pot.squared``.
     lst : SumList
+    code : uint8[M] or int32[M]
+        The image code of every pair.
     pot : SumTables
     chunks : ase_mlg.partition.Chunks
         The chunks, their windows and the reduction's segments; the kernel
@@ -130,7 +136,6 @@ def _pair_sum(pair, lst, pot, chunks, out):
     types = lst.types
     rowptr = lst.rowptr
     nbr = lst.nbr
-    code = lst.code
     svec = lst.svec
     order = lst.order
     squared = pot.squared
@@ -318,7 +323,7 @@ _pair_sum_inline = numba.njit(inline='always', error_model='numpy')(_pair_sum)
 
 
 @numba.njit(cache=True, error_model='numpy')
-def first_bad_pair(pair, lst, pot):
+def first_bad_pair(pair, lst, code, pot):
     """The first pair of the list that a kernel of :func:`pair_kernel`
     flagged (the error path only: a serial scan).
 
@@ -327,6 +332,7 @@ def first_bad_pair(pair, lst, pot):
     pair : numba function
         The pair function the kernel ran with.
     lst : SumList
+    code : uint8[M] or int32[M]
     pot : SumTables
 
     Returns
@@ -339,7 +345,6 @@ def first_bad_pair(pair, lst, pot):
     types = lst.types
     rowptr = lst.rowptr
     nbr = lst.nbr
-    code = lst.code
     svec = lst.svec
     params = pot.params
     cut2 = pot.cut2
@@ -411,16 +416,16 @@ def pair_vectors(positions, i, j, shifts, cell):
 
 # Cached kernels of the built-in potentials: module-level functions naming
 # their pair function, so numba can key them on disk.
-def _sum_lj_shifted(lst, pot, chunks, out):
-    _pair_sum_inline(lennard_jones_shifted_r2, lst, pot, chunks, out)
+def _sum_lj_shifted(lst, code, pot, chunks, out):
+    _pair_sum_inline(lennard_jones_shifted_r2, lst, code, pot, chunks, out)
 
 
-def _sum_lj_smooth(lst, pot, chunks, out):
-    _pair_sum_inline(lennard_jones_smooth_r2, lst, pot, chunks, out)
+def _sum_lj_smooth(lst, code, pot, chunks, out):
+    _pair_sum_inline(lennard_jones_smooth_r2, lst, code, pot, chunks, out)
 
 
-def _sum_morse(lst, pot, chunks, out):
-    _pair_sum_inline(morse, lst, pot, chunks, out)
+def _sum_morse(lst, code, pot, chunks, out):
+    _pair_sum_inline(morse, lst, code, pot, chunks, out)
 
 
 _FLAGS = dict(nogil=True, error_model='numpy')
@@ -448,8 +453,8 @@ def pair_kernel(pair, threaded):
 
     Returns
     -------
-    callable ``kernel(lst, pot, chunks, out)``
-        Takes a :class:`SumList`, a :class:`SumTables`, an
+    callable ``kernel(lst, code, pot, chunks, out)``
+        Takes a :class:`SumList`, the image codes, a :class:`SumTables`, an
         :class:`ase_mlg.partition.Chunks` and a :class:`SumOutputs`, fills
         ``out`` and returns None.  For a built-in pair function
         (:func:`is_built_in`) the cached numba dispatcher itself; else

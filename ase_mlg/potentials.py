@@ -479,7 +479,7 @@ class PairPotential:
                             f'of this list or None, got {chunks!r}')
         nchunk = chunks.nchunk
         kernel = pair_kernel(self.pair, threaded=nchunk > 1)
-        lst = SumList(X, types, rowptr, nbr, code, svec, order)
+        lst = SumList(X, types, rowptr, nbr, svec, order)
         pot = SumTables(self.squared, self.params, self._cut2, self._rmin2,
                          self._check_rmin, bool(virial or virials))
         out = {'forces': np.empty((n, 3))}
@@ -491,20 +491,20 @@ class PairPotential:
             sums = SumOutputs(fbuf, ebuf, vbuf, part, out['forces'], e_out,
                               v_out)
             with dynamic_schedule():
-                kernel(lst, pot, chunks.arrays, sums)
+                kernel(lst, code, pot, chunks.arrays, sums)
             if part[:, 8].any() or not np.isfinite(part[:, [0, 7]]).all():
-                q, why = first_bad_pair(self.pair, lst, pot)
+                q, why = first_bad_pair(self.pair, lst, code, pot)
                 if q < 0:
                     raise ValueError('non-finite total energy or force '
                                      '(overflow of the pair sums)')
-                raise self._pair_error(lst, q, why)
+                raise self._pair_error(lst, code, q, why)
         except ArithmeticError as err:
             # pair functions compiled with error_model='python' raise; find
             # the pair in Python (error path only) to name it
-            q = self._find_raising_pair(lst)
+            q = self._find_raising_pair(lst, code)
             if q < 0:
                 raise
-            raise self._pair_error(lst, q, PairError.NON_FINITE,
+            raise self._pair_error(lst, code, q, PairError.NON_FINITE,
                                    err) from None
         out['energy'] = math.fsum(part[:, 0])
         if virial or virials:
@@ -516,17 +516,17 @@ class PairPotential:
         return out
 
     @staticmethod
-    def _pair_geometry(lst, q):
+    def _pair_geometry(lst, code, q):
         """Rows ``(t, u)`` and distance (Å) of pair ``q`` of ``lst``
-        (a :class:`ase_mlg.pairsum.SumList`)."""
+        (a :class:`ase_mlg.pairsum.SumList`, image codes ``code``)."""
         t = int(np.searchsorted(lst.rowptr, q, side='right') - 1)
         u = int(lst.nbr[q])
-        D = (lst.X[u] - lst.X[t]) + lst.svec[lst.code[q]]
+        D = (lst.X[u] - lst.X[t]) + lst.svec[code[q]]
         return t, u, float(np.sqrt(D @ D))
 
-    def _find_raising_pair(self, lst):
+    def _find_raising_pair(self, lst, code):
         for q in range(int(lst.rowptr[-1])):
-            t, u, r = self._pair_geometry(lst, q)
+            t, u, r = self._pair_geometry(lst, code, q)
             ta, tb = lst.types[t], lst.types[u]
             if 0 < r <= self.cutoffs[ta, tb]:
                 try:
@@ -542,10 +542,10 @@ class PairPotential:
             return e, du * r
         return self.pair(r, self.params[ta, tb])
 
-    def _pair_error(self, lst, q, why, cause=None):
+    def _pair_error(self, lst, code, q, why, cause=None):
         """The ValueError describing why pair ``q`` of ``lst`` failed
         (``why`` a :class:`ase_mlg.pairsum.PairError`)."""
-        t, u, r = self._pair_geometry(lst, q)
+        t, u, r = self._pair_geometry(lst, code, q)
         ta, tb = lst.types[t], lst.types[u]
         where = (f'atoms {lst.order[t]} and {lst.order[u]} at distance '
                  f'{r:.6g} Å')

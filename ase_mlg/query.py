@@ -101,9 +101,9 @@ _PairCutoff = namedtuple("_PairCutoff", "mode cutoff radii types table self_inte
 # distance <= split2 first.
 _RowFormat = namedtuple("_RowFormat", "shift_lo shift_dim split2")
 
-# Where the pairs go: ``nbr``/``code`` from ``start`` on, at most ``cap``
+# Where the pairs go: ``nbr`` (and the codes, beside it) from ``start`` on, at most ``cap``
 # of them; ``rowcount`` (by rank) gets every row's length.
-_Room = namedtuple("_Room", "nbr code start cap rowcount")
+_Room = namedtuple("_Room", "nbr start cap rowcount")
 
 
 # --------------------------------------------------------------------------
@@ -293,7 +293,7 @@ def _prepare(A, blocks, reach, cand, cf, qlo, qhi):
 
 
 @njit(cache=True, nogil=True)
-def _scan(b0, b1, blocks, reach, cutoff, fmt, room):
+def _scan(b0, b1, blocks, reach, cutoff, fmt, room, out_c):
     """Half scan of blocks ``[b0, b1)``: every unordered pair
     {(i, j, S), (j, i, -S)} with d < cutoff(i, j) once.
 
@@ -311,6 +311,12 @@ def _scan(b0, b1, blocks, reach, cutoff, fmt, room):
         Image codes and the row split.
     room : _Room
         Output room and row lengths.
+    out_c : uint8[:] or int32[:]
+        The pairs' image codes, beside ``room.nbr``.  Not a field of
+        ``room``: its dtype depends on the number of images, and numba 0.59
+        dispatches a namedtuple of four or more fields whose field types
+        vary between calls to the wrong overload (fixed in later numba;
+        tests/test_kernel_structures.py keeps every structure to one type).
 
     Returns
     -------
@@ -347,7 +353,7 @@ def _scan(b0, b1, blocks, reach, cutoff, fmt, room):
     mode, cut, self_interaction = cutoff.mode, cutoff.cutoff, cutoff.self_interaction
     rs, ts, table = cutoff.radii, cutoff.types, cutoff.table
     slo, sdim, split2 = fmt.shift_lo, fmt.shift_dim, fmt.split2
-    out_j, out_c, lo, cap = room.nbr, room.code, room.start, room.cap
+    out_j, lo, cap = room.nbr, room.start, room.cap
     rowcount = room.rowcount
     total = 0
     cand = np.empty((64, 4), dtype=np.int64)
@@ -634,7 +640,7 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
         total = 0
         while True:
             b, k = _scan(b, end_b, blocks, reach, cutoff, fmt,
-                         _Room(buf_j, buf_c, at, room, rowcount))
+                         _Room(buf_j, at, room, rowcount), buf_c)
             pieces.append((buf_j, buf_c, at, k))
             total += k
             if b == end_b:

@@ -491,19 +491,19 @@ def test_first_bad_pair_names_the_pair_and_why():
     # the kernels' error vocabulary: the first flagged pair and a PairError
     X = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [5.0, 0.0, 0.0]])
     lst = SumList(X, np.zeros(3, np.int32), np.array([0, 2, 3, 3]),
-                  np.array([2, 1, 2], np.int32), np.zeros(3, np.uint8),
-                  np.zeros((1, 3)), np.arange(3))
+                  np.array([2, 1, 2], np.int32), np.zeros((1, 3)), np.arange(3))
+    code = np.zeros(3, np.uint8)
     pot = LennardJones(**AR)
     tables = SumTables(True, pot.params, pot.cutoffs**2, pot.rmin**2, False,
                        True)
-    q, why = first_bad_pair(pot.pair, lst, tables)
+    q, why = first_bad_pair(pot.pair, lst, code, tables)
     assert (q, why) == (1, PairError.BAD_DISTANCE)
     assert isinstance(why, PairError)
     tables = tables._replace(rmin2=np.full((1, 1), 6.0**2))
-    assert first_bad_pair(pot.pair, lst, tables) == (0, PairError.BELOW_RMIN)
+    assert first_bad_pair(pot.pair, lst, code, tables) == (0, PairError.BELOW_RMIN)
     ok = lst._replace(rowptr=np.array([0, 1, 1, 1]))
     tables = tables._replace(rmin2=np.zeros((1, 1)))
-    assert first_bad_pair(pot.pair, ok, tables) == (-1, PairError.OK)
+    assert first_bad_pair(pot.pair, ok, code, tables) == (-1, PairError.OK)
 
 
 def test_prepare():
