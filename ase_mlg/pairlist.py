@@ -393,25 +393,20 @@ def _oriented(offsets, basis, a, j, S0, S1, S2):
 def _count_oriented(lists, code, orient, r0, r1, cnt):
     """Pairs each rank gets from rows [r0, r1) of the half list oriented by
     ``orient`` (see :func:`_oriented`): a pair kept as it is counts at its
-    row, one kept as its mirror at its neighbour."""
-    rowptr = lists.rowptr
-    nbr = lists.nbr
-    zero_code = lists.zero_code
-    shifts = lists.shifts
-    images = lists.images
+    row, one kept as its mirror at its neighbour.  (A serial kernel: the
+    fields are read where they are used.)"""
     order = lists.order
-    offsets = orient.offsets
-    basis = orient.basis
     for t in range(r0, r1):
         a = order[t]
-        for p in range(rowptr[t], rowptr[t + 1]):
-            u = nbr[p]
+        for p in range(lists.rowptr[t], lists.rowptr[t + 1]):
+            u = lists.nbr[p]
             k = code[p]
-            S0, S1, S2 = _pair_shift(shifts, images, k, t, u)
-            direct, mirror = _oriented(offsets, basis, a, order[u], S0, S1, S2)
+            S0, S1, S2 = _pair_shift(lists.shifts, lists.images, k, t, u)
+            direct, mirror = _oriented(orient.offsets, orient.basis, a, order[u],
+                                       S0, S1, S2)
             if direct:
                 cnt[t] += 1
-            if mirror and not (u == t and k == zero_code):
+            if mirror and not (u == t and k == lists.zero_code):
                 cnt[u] += 1
 
 

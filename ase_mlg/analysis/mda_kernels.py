@@ -255,14 +255,6 @@ def mda_s_counts(pi, pj, metric, bins, sites, out):
     ``metric`` is :func:`mda_counts`'s; ``sites`` (:data:`SiteMaps`) says
     where each atom is in ag1 and ag2.
     """
-    W = metric.coords
-    kind = metric.kind
-    box = metric.box
-    half = metric.half
-    inv = metric.inv
-    nsgrid = metric.nsgrid
-    cut = metric.cut
-    cut2 = metric.cut2
     rmin = bins.rmin
     rmax = bins.rmax
     nbins = bins.nbins
@@ -281,11 +273,13 @@ def mda_s_counts(pi, pj, metric, bins, sites, out):
             continue
         if ptr2[a + 1] == ptr2[a] and ptr2[b + 1] == ptr2[b]:
             continue
+        # a serial kernel: the metric's fields are read where they are used
         if a == b:
             d2 = 0.0
         else:
-            d2 = _mda_d2(W, a, b, kind, box, half, inv)
-        d = _kept_distance(d2, nsgrid, cut, cut2)
+            d2 = _mda_d2(metric.coords, a, b, metric.kind, metric.box, metric.half,
+                         metric.inv)
+        d = _kept_distance(d2, metric.nsgrid, metric.cut, metric.cut2)
         if d < 0.0:
             continue
         k = int((d - rmin) * nbins / (rmax - rmin))
