@@ -159,3 +159,61 @@ def test_no_machine_local_paths():
             if any(s in line for s in patterns):
                 hits.append(f"{f}:{k}")
     assert hits == []
+
+
+# -- the house rules of issue 19: state by name, not by position ------------
+
+MAX_PARAMETERS = 12
+MAX_UNPACKED = 8
+CALCULATOR_LINES = 200
+
+
+def _house_rule_breaches(tree, where):
+    """Functions over MAX_PARAMETERS parameters, tuples of more than
+    MAX_UNPACKED fields unpacked by position, private names imported from
+    another module of the package, and calls that splat a slice of a tuple
+    (``f(*args[:-2])``: arguments known by position only)."""
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            a = node.args
+            n = (len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs)
+                 + bool(a.vararg) + bool(a.kwarg))
+            if n > MAX_PARAMETERS:
+                out.append(f"{where}:{node.lineno} {getattr(node, 'name', 'lambda')} "
+                           f"takes {n} parameters")
+        targets = (node.targets if isinstance(node, ast.Assign)
+                   else [node.target] if isinstance(node, ast.For) else [])
+        for t in targets:
+            if isinstance(t, ast.Tuple) and len(t.elts) > MAX_UNPACKED:
+                out.append(f"{where}:{node.lineno} unpacks {len(t.elts)} fields by position")
+        if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "")
+                                                 .startswith("ase_mlg")):
+            for alias in node.names:
+                if alias.name.startswith("_") and not alias.name.startswith("__"):
+                    out.append(f"{where}:{node.lineno} imports private {alias.name}")
+        if isinstance(node, ast.Call):
+            for arg in node.args:
+                if isinstance(arg, ast.Starred) and isinstance(arg.value, ast.Subscript):
+                    out.append(f"{where}:{node.lineno} splats *{ast.unparse(arg.value)}")
+    return out
+
+
+def test_house_rules_hold():
+    breaches = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        breaches += _house_rule_breaches(ast.parse(path.read_text()),
+                                         str(path.relative_to(ROOT)))
+    assert not breaches, "\n".join(breaches)
+    lines = len((PACKAGE / "calculator.py").read_text().splitlines())
+    assert lines <= CALCULATOR_LINES, f"calculator.py has {lines} lines"
+
+
+def test_house_rules_catch_what_they_name():
+    src = ("from ._x import _private\n"
+           "def f(a, b, c, d, e, f, g, h, i, j, k, l, m):\n"
+           "    (a, b, c, d, e, f, g, h, i) = m\n"
+           "    return g(*m[:-2])\n")
+    found = " | ".join(_house_rule_breaches(ast.parse(src), "x.py"))
+    for what in ("private _private", "takes 13 parameters", "unpacks 9 fields", "splats *m[:-2]"):
+        assert what in found, found
