@@ -96,7 +96,8 @@ class VerletList:
         The template width of the list, None for the exact query.
     X : float64[N, 3]
         Positions of the last update in row order, each in the image the
-        grid keeps it in (Å): the pair kernel's positions.
+        grid keeps it in (Å): the pair kernel's positions (None after a
+        bare :meth:`build`).
     svec : float64[K, 3]
         Cartesian cell shift of every image code at the last update's cell, Å.
     types : int32[N] or None
@@ -116,6 +117,7 @@ class VerletList:
             raise ValueError(f"skin: must be finite and >= 0, got {skin}")
         self.skin = skin
         self.closed = bool(closed)
+        self.pairs = self._spare = None
         if np.ndim(cutoff) == 0:
             self.radii = None
             self.cutoff = cutoff
@@ -136,22 +138,23 @@ class VerletList:
 
     @classmethod
     def allocate(cls, positions, cell, pbc, cutoff, numbers=None, **options):
-        """A list built for ``positions`` (Å) in ``cell`` with ``pbc``;
-        ``options`` are the constructor's."""
+        """A list built for ``positions`` (Å) in ``cell`` with ``pbc``,
+        ready for :meth:`update`; ``options`` are the constructor's."""
         vl = cls(cutoff, **options)
-        vl.build(positions, cell, pbc, numbers)
+        vl._build_kept(positions, np.asarray(cell, dtype=np.float64), pbc, numbers)
         return vl
 
     def reset(self):
         """Forget the list and the grid: the next update builds both."""
         self._tracker.reset()
         self.pairs = self.X = self.svec = self.types = self.width = None
-        self._partition = None
+        self._partition = self._ref = self._spare = None
 
     @property
     def cutoff(self):
         """The scalar cutoff, Å (None with per-atom radii).  Setting it
-        drops the list: the next update builds one at the new radius."""
+        drops the list: the next update builds one at the new radius (into
+        the old one's arrays)."""
         return self._cutoff
 
     @cutoff.setter
@@ -160,6 +163,8 @@ class VerletList:
         self.rlist = self._cutoff + self.skin
         if self.skin == 0 and self.closed:
             self.rlist = float(np.nextafter(self._cutoff, np.inf))
+        if self.pairs is not None:
+            self._spare = self.pairs
         self.pairs = None
 
     @property
@@ -197,10 +202,10 @@ class VerletList:
         if (self.pairs is not None and len(positions) == self.pairs.natoms
                 and np.array_equal(pbc, self._pbc)
                 and (numbers is None or np.array_equal(numbers, self._numbers))):
-            X = self._kept_positions(positions, cell)
+            X = self._kept_positions(positions, cell) if self._ref is not None else None
         self.timings["check"] += time.perf_counter() - t0
         if X is None:
-            self.build(positions, cell, pbc, numbers)
+            self._build_kept(positions, cell, pbc, numbers)
             return True
         self.X = X
         self.svec = shift_vectors(self.pairs.shifts, cell)
@@ -249,7 +254,9 @@ class VerletList:
         where it can be)."""
         t0 = time.perf_counter()
         cell = np.asarray(cell, dtype=np.float64)
-        old, self.pairs, self._partition = self.pairs, None, None
+        old = self.pairs if self.pairs is not None else self._spare
+        self.pairs = self._partition = self._spare = None
+        self.X = self.svec = self._ref = None
         grid = self._tracker.follow(positions, cell, pbc)
         positions = grid.positions  # the same numbers, as float64 C arrays
         t1 = time.perf_counter()
@@ -278,23 +285,36 @@ class VerletList:
             pl = half_list(index, rat, cut=self.rlist, self_interaction=self.self_interaction,
                            pairs_per_atom=hint, reuse=old, split=split)
         del old, index
-        # the kernel's positions through the per-call gather (compiled or
-        # loaded here, not in the first call after); they are the validity
-        # test's reference too (never written: each call gathers anew)
-        self.X = self._ref = pl.positions(positions, cell)
-        self.svec = shift_vectors(pl.shifts, cell)
+        self.pairs = pl
         if self.width is not None and self.rlist != self.cutoff:
+            self._gather(positions, cell)
             pl.partition(self.X, self.svec, self.cutoff)  # the scan orders its own
         if self._types_of is not None:
             self.types = np.ascontiguousarray(self._types_of(numbers)[pl.order])
         self._numbers = None if numbers is None else np.array(numbers, copy=True)
         self._pbc = np.broadcast_to(np.asarray(pbc, dtype=bool), (3,)).copy()
         self._ref_cell = cell.copy()
-        self.pairs = pl
         self.version += 1
         self._builds += 1
         self.timings["list_build"] += time.perf_counter() - t0
         return pl
+
+    def _build_kept(self, positions, cell, pbc, numbers):
+        """:meth:`build`, and the kernel's positions for :meth:`update`."""
+        self.build(positions, cell, pbc, numbers)
+        t0 = time.perf_counter()
+        if self.X is None:
+            self._gather(self.grid.positions, cell)
+        self.timings["list_build"] += time.perf_counter() - t0
+
+    def _gather(self, positions, cell):
+        """The kernel's positions and shift vectors at the build, through
+        the per-call gather (compiled or loaded here, not in the first call
+        after): only for lists that :meth:`update` keeps (the neighbour
+        lists and the RDFs read :meth:`arrays`).  They are the validity
+        test's reference too (never written: each call gathers anew)."""
+        self.X = self._ref = self.pairs.positions(positions, cell)
+        self.svec = shift_vectors(self.pairs.shifts, cell)
 
     # -- reading it -----------------------------------------------------------
     def row_partition(self, nthreads=None):
