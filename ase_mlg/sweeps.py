@@ -45,6 +45,21 @@ def _swap_sites(sites, coords, s, u):
         coords[u, c] = x
 
 
+@njit(cache=True, inline="always")
+def _flag_offsets(nx, ny, nz):
+    """Where the line flags of axes 1 and 2 start in ``act`` (axis 0's at
+    0): one flag per line, ``ny*nz`` lines along axis 0, ``nx*nz`` along 1."""
+    off1 = ny * nz
+    return off1, off1 + nx * nz
+
+
+@njit(cache=True, inline="always")
+def _row(o, ny, nz):
+    """``(i, j, first site)`` of row ``o = i*ny + j``, the line of sites
+    ``(i, j, 0 .. nz-1)`` along axis 2."""
+    return o // ny, o % ny, o * nz
+
+
 def _axis_pass(sites, coords, nx, ny, nz, axis, period, act, touched):
     """One sweep of Boris's odd-even swaps along every line of one axis
     (Boris 1985 sec. III): the even phase, the odd phase and, on a periodic
@@ -65,8 +80,7 @@ def _axis_pass(sites, coords, nx, ny, nz, axis, period, act, touched):
     marked in ``touched`` for :func:`_check_touched`, which flags the lines
     of the other axes they put out of order.  Returns the swaps.
     """
-    off1 = ny * nz
-    off2 = off1 + nx * nz
+    off1, off2 = _flag_offsets(nx, ny, nz)
     if axis == 0:
         n, stride, nouter, base_off = nx, ny * nz, 1, 0
     elif axis == 1:
@@ -125,12 +139,9 @@ def _mark_disorder(coords, nx, ny, nz, periods, act):
     ever set to 1, so rows writing the same flag concurrently agree.
     """
     nyz = ny * nz
-    off1 = nyz
-    off2 = off1 + nx * nz
+    off1, off2 = _flag_offsets(nx, ny, nz)
     for o in prange(nx * ny):
-        i = o // ny
-        j = o % ny
-        row = o * nz
+        i, j, row = _row(o, ny, nz)
         for k in range(nz):
             s = row + k
             if k + 1 < nz and coords[s, 2] > coords[s + 1, 2]:
@@ -176,13 +187,10 @@ def _check_touched(coords, nx, ny, nz, axis, periods, act, touched):
     do not race with anything, and flags are only set to 1: the flags are
     the same on any number of threads."""
     nyz = ny * nz
-    off1 = nyz
-    off2 = off1 + nx * nz
+    off1, off2 = _flag_offsets(nx, ny, nz)
     p0, p1, p2 = periods[0], periods[1], periods[2]
     for o in prange(nx * ny):
-        i = o // ny
-        j = o % ny
-        row = o * nz
+        i, j, row = _row(o, ny, nz)
         for k in range(nz):
             s = row + k
             if touched[s] == 0:
