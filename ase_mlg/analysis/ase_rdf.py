@@ -12,8 +12,9 @@ import math
 import os
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
+from ..parallel import serial_and_parallel, use_threads
 from .checks import check_nbins, check_rmax, check_template, one_line
 from .pairs import PairSource, chunk_bounds, n_chunks
 
@@ -35,11 +36,11 @@ class VolumeNotDefined(ValueError, _ASEVolumeNotDefined):
     """The cell has (nearly) zero volume (``ase.geometry.rdf``)."""
 
 
-@njit(cache=True, parallel=True)
 def _ase_counts(pi, pj, S, pos, cell, dr, nbins, centre, other, nchunk):
     """Counts per ``ceil(d / dr)`` index (0..nbins) over both orientations
     of each unordered pair, with get_rdf's arithmetic:
-    ``d = sqrt(add.reduce((pos[j] + S @ cell - pos[i])**2))``."""
+    ``d = sqrt(add.reduce((pos[j] + S @ cell - pos[i])**2))``; integer
+    counts, the same for any ``nchunk``."""
     hist = np.zeros((nchunk, nbins + 1), dtype=np.int64)
     for c in prange(nchunk):
         lo, hi = chunk_bounds(pi.size, c, nchunk)
@@ -71,6 +72,12 @@ def _ase_counts(pi, pj, S, pos, cell, dr, nbins, centre, other, nchunk):
                 if k <= nbins:
                     hist[c, int(k)] += 1
     return hist.sum(axis=0)
+
+
+# twins through the package's threading policy: the threaded one is launched
+# under the launch lock where the layer is not thread-safe (workqueue aborts
+# the process when two Python threads launch at once)
+_ase_counts_serial, _ase_counts_threaded = serial_and_parallel(_ase_counts)
 
 
 def _ase_skipped_centres(atoms, pi, pj, centre, other, rmax):
@@ -161,9 +168,13 @@ def _ase_frame(atoms, bin_edges, elements, volume, pairs, ase_quirk,
         if skip.size:
             centre = centre.copy()
             centre[skip] = False
-    counts = _ase_counts(pi, pj, S, np.ascontiguousarray(atoms.positions, dtype=np.float64),
-                         np.ascontiguousarray(atoms.cell.array, dtype=np.float64),
-                         dr, nbins, centre, other, n_chunks(len(pi)))
+    if use_threads("pairs", len(pi)):
+        count, nchunk = _ase_counts_threaded, n_chunks(len(pi))
+    else:
+        count, nchunk = _ase_counts_serial, 1
+    counts = count(pi, pj, S, np.ascontiguousarray(atoms.positions, dtype=np.float64),
+                   np.ascontiguousarray(atoms.cell.array, dtype=np.float64),
+                   dr, nbins, centre, other, nchunk)
     return _normalised(counts, bin_edges, dr, n, rho)
 
 

@@ -22,6 +22,7 @@ from MDAnalysis.lib import c_distances as _mda_c
 from MDAnalysis.lib import distances as _mda_distances
 from MDAnalysis.lib.mdamath import triclinic_vectors
 
+from ..parallel import serial_and_parallel, use_threads
 from .pairs import chunk_bounds
 
 __all__ = ["MDAConvention", "Metric", "HistogramBins", "PairWeights", "SiteBins",
@@ -186,16 +187,9 @@ def _pair_weight(a, b, m1, m2, kp1, kk1, kc1, kp2, kk2, kc2, use_keys):
     return w
 
 
-@njit(cache=True, parallel=True)
-def mda_counts(pi, pj, metric, bins, weights, nchunk):
-    """InterRDF's histogram (int64 per bin) over the unordered candidate
-    pairs (pi, pj), pi != pj, plus every atom with itself (d = 0).
-
-    ``metric`` (:data:`Metric`) measures and keeps the pairs as
-    ``capped_distance``; ``bins`` (:data:`HistogramBins`) are
-    ``np.histogram``'s; ``weights`` (:data:`PairWeights`) weigh each pair
-    as :func:`_pair_weight` says; ``nchunk`` chunks of pairs.
-    """
+def _mda_counts(pi, pj, metric, bins, weights, nchunk):
+    """:func:`mda_counts`'s kernel, ``nchunk`` chunks of pairs (integer
+    counts: the same for any ``nchunk``)."""
     # fields read here: the parallel loop cannot read a namedtuple's
     W = metric.coords
     kind = metric.kind
@@ -242,6 +236,28 @@ def mda_counts(pi, pj, metric, bins, weights, nchunk):
             out[k0] += _pair_weight(a, a, m1, m2, kp1, kk1, kc1, kp2, kk2, kc2,
                                     use_keys)
     return out
+
+
+# twins through the package's threading policy: the threaded one is launched
+# under the launch lock where the layer is not thread-safe (workqueue aborts
+# the process when two Python threads launch at once)
+_mda_counts_serial, _mda_counts_threaded = serial_and_parallel(_mda_counts)
+
+
+def mda_counts(pi, pj, metric, bins, weights, nchunk):
+    """InterRDF's histogram (int64 per bin) over the unordered candidate
+    pairs (pi, pj), pi != pj, plus every atom with itself (d = 0).
+
+    ``metric`` (:data:`Metric`) measures and keeps the pairs as
+    ``capped_distance``; ``bins`` (:data:`HistogramBins`) are
+    ``np.histogram``'s; ``weights`` (:data:`PairWeights`) weigh each pair
+    as :func:`_pair_weight` says; ``nchunk`` chunks of pairs when the
+    pairs are many enough to thread (``ase_mlg.parallel.use_threads``),
+    else one chunk, serially.
+    """
+    if use_threads("pairs", pi.size):
+        return _mda_counts_threaded(pi, pj, metric, bins, weights, nchunk)
+    return _mda_counts_serial(pi, pj, metric, bins, weights, 1)
 
 
 @njit(cache=True)
