@@ -16,13 +16,34 @@ installed ``tbb`` distribution first (the loader then resolves
 ``tbbpool``'s dependency by its soname), selects ``"tbb"`` and starts the
 layer, so :data:`LAYER` is the layer that really runs.
 
-Where TBB cannot load (no ``tbb`` wheel for the platform), one
-:class:`ThreadingLayerWarning` says what is missing and ase-mlg uses
-numba's ``workqueue`` layer, which is fork-safe but not thread-safe: its
-threaded kernels are then launched one at a time under a lock
-(:data:`SERIALISED`), so concurrent use still never crashes.  A user's
-``NUMBA_THREADING_LAYER`` is respected (and serialised the same way if it
-is workqueue).  :func:`config` / ``ase_mlg.show_config()`` report it all.
+A user's choice is respected, never replaced: ``NUMBA_THREADING_LAYER``,
+or ``numba.config.THREADING_LAYER`` set in code (to anything but
+``"default"``) before ``import ase_mlg``.  libtbb is loaded by full path
+for every choice that can use TBB (``default``, ``safe``, ``threadsafe``,
+``forksafe``, ``tbb``), so numba's own selection finds it (these all
+give TBB where it is installed); ``omp`` and ``workqueue`` are left as
+they are.  If the user asked for ``tbb`` or ``safe`` (TBB only) and TBB
+cannot load, the import fails with one line saying so, instead of
+numba's "No threading layer could be loaded".  :func:`config` reports
+the choice as ``user_choice``.
+
+Where the user made no choice and TBB cannot load (no ``tbb`` wheel for
+the platform), one :class:`ThreadingLayerWarning` says what is missing and
+ase-mlg uses numba's ``workqueue`` layer, which is fork-safe but not
+thread-safe: its threaded kernels are then launched one at a time under a
+lock (:data:`SERIALISED`), so concurrent use still never crashes; a
+user's choice of workqueue is serialised the same way.
+
+GNU OpenMP (numba's Linux ``omp``) is thread-safe but not fork-safe: a
+forked child that launches a parallel kernel hangs or dies.  When it is
+the layer that runs -- started by numba parallel code that ran before
+``import ase_mlg`` (the layer is chosen once per process, so ase-mlg
+cannot change it), or chosen by the user (``omp``, or ``threadsafe``
+without TBB) -- the import warns once (:class:`ThreadingLayerWarning`):
+forked workers that run parallel kernels hang, and what to do.  A user
+who chose ``omp`` made a choice, but the warning costs one line and saves
+a hung pool, so they get it too; Intel OpenMP is fork-safe and gets none.
+:func:`config` / ``ase_mlg.show_config()`` report it all.
 
 When to thread
 --------------
@@ -84,7 +105,8 @@ __all__ = ["THRESHOLDS", "LAYER", "SERIALISED", "ThreadingLayerWarning",
 
 
 class ThreadingLayerWarning(RuntimeWarning):
-    """numba's intended threading layer (TBB) could not load."""
+    """numba's intended threading layer (TBB) could not load, or the layer
+    that runs (GNU OpenMP) hangs forked workers."""
 
 
 INTENDED_LAYER = "tbb"
@@ -132,32 +154,106 @@ def _load_tbb():
     return f"numba's TBB layer did not load ({first})"
 
 
-def _start_layer():
-    """Choose, start and verify numba's threading layer; returns
-    ``(layer, problem)``."""
+#: The choices of numba's threading layer that can use TBB (numba tries it
+#: first for each), and those that need it.
+_TBB_CHOICES = ("default", "safe", "threadsafe", "forksafe", "tbb")
+_TBB_ONLY = ("safe", "tbb")
+
+
+def _user_choice():
+    """The threading layer the user asked numba for, lower case, or None:
+    ``NUMBA_THREADING_LAYER`` (numba reads it into its config when it is
+    imported), or ``numba.config.THREADING_LAYER`` set in code before
+    ``import ase_mlg`` (the config differs from numba's ``"default"``);
+    where both, the config, which is what numba obeys."""
+    chosen = str(numba.config.THREADING_LAYER).lower()
+    if "NUMBA_THREADING_LAYER" in os.environ or chosen != "default":
+        return chosen
+    return None
+
+
+def _asked(choice):
+    """How the user asked for ``choice``, in their words."""
+    env = os.environ.get("NUMBA_THREADING_LAYER")
+    if env is not None and env.lower() == choice:
+        return f"NUMBA_THREADING_LAYER={env}"
+    return f"numba.config.THREADING_LAYER = {choice!r}"
+
+
+def _one_line(err):
+    return " ".join(str(err).split())
+
+
+def _start_layer(choice):
+    """Choose (unless the user did), start and verify numba's threading
+    layer; returns ``(layer, problem, started_before)``."""
     from numba.np.ufunc import parallel as _npar
+    if _npar._is_initialized:
+        # numba parallel code ran before this import: the layer is fixed
+        # for the life of the process
+        return numba.threading_layer(), None, True
     problem = None
-    if "NUMBA_THREADING_LAYER" not in os.environ and not _npar._is_initialized:
+    if choice is None or choice in _TBB_CHOICES:
         problem = _load_tbb()
+    if choice is None:
         numba.config.THREADING_LAYER = INTENDED_LAYER if problem is None else "workqueue"
+    elif problem is not None and choice in _TBB_ONLY:
+        # numba would say only "No threading layer could be loaded"
+        raise ImportError(f"ase-mlg: {_asked(choice)} asks for numba's TBB layer, "
+                          f"which cannot load: {problem}. Install TBB ('pip install "
+                          f"tbb'), or choose no layer (ase-mlg then falls back to "
+                          f"workqueue itself)")
     # start the layer now (no kernel is compiled): numba_threading_layer()
     # then names what really runs, and a failure shows at import, not in
     # the middle of an MD run
-    _npar._launch_threads()
-    return numba.threading_layer(), problem
+    try:
+        _npar._launch_threads()
+    except ValueError as err:  # an unknown or unloadable choice: one line
+        raise ImportError(f"ase-mlg: numba's threading layer did not start "
+                          f"({_asked(choice) if choice else 'the default'}): "
+                          f"{_one_line(err)}") from None
+    return numba.threading_layer(), problem, False
 
 
-LAYER, _PROBLEM = _start_layer()
+def _fork_hazard(layer, choice, started_before):
+    """Why forked workers that run parallel kernels hang here, and what to
+    do (one line), or None where the layer is fork-safe."""
+    if layer != "omp":
+        return None
+    from numba.np.ufunc import omppool
+    if getattr(omppool, "openmp_vendor", "GNU") != "GNU":
+        return None  # Intel OpenMP survives a fork
+    if started_before:
+        why = "started by numba parallel code that ran before import ase_mlg"
+        todo = ("import ase_mlg before any other numba parallel code (it then "
+                "starts TBB), set NUMBA_THREADING_LAYER=workqueue, or use the "
+                "'spawn' start method")
+    else:
+        why = _asked(choice) + ("" if choice == "omp" else ", and TBB did not load")
+        todo = ("choose 'tbb' (NUMBA_THREADING_LAYER=tbb, 'pip install tbb') or "
+                "'workqueue', or use the 'spawn' start method")
+    return (f"numba's threading layer is GNU OpenMP ({why}), which is not fork-safe: "
+            f"forked workers that run parallel kernels (multiprocessing 'fork' pools, "
+            f"dask process workers) hang or die, and the RDF 'multiprocessing' and "
+            f"'dask' backends refuse to start; {todo}")
+
+
+_USER_CHOICE = _user_choice()
+LAYER, _PROBLEM, _STARTED_BEFORE = _start_layer(_USER_CHOICE)
 #: Threaded kernels are launched one at a time: the layer is not thread-safe.
 SERIALISED = LAYER == "workqueue"
+_FORK_HAZARD = _fork_hazard(LAYER, _USER_CHOICE, _STARTED_BEFORE)
 _LAUNCH_LOCK = threading.RLock()  # re-entered: dynamic_schedule around a _Serialised launch
-if _PROBLEM is not None:
+if _PROBLEM is not None and _USER_CHOICE is None:
+    # a user's own choice is not warned about: numba gave what it asked for
     warnings.warn(f"ase-mlg: {_PROBLEM}. Using numba's '{LAYER}' layer instead: "
                   f"threaded kernels launched from several Python threads (dask "
                   f"workers, thread pools) run one at a time, and it is slower "
                   f"(~130 µs a launch against TBB's ~6 µs). Install TBB "
                   f"('pip install tbb') where it exists for the platform.",
                   ThreadingLayerWarning, stacklevel=2)
+if _FORK_HAZARD is not None:
+    warnings.warn(f"ase-mlg: {_FORK_HAZARD}.", ThreadingLayerWarning, stacklevel=2)
 
 #: The package's fixed work sizes from which kernels run threaded (measured
 #: on 2 and 16 cores: below these, thread hand-offs cost more than they
@@ -314,7 +410,12 @@ def config(probe=True):
     -------
     dict
         ``threading_layer`` (numba's, as it runs), ``intended_layer``,
-        ``problem`` (why the intended layer did not load, or None),
+        ``user_choice`` (the layer the user asked for, through
+        ``NUMBA_THREADING_LAYER`` or ``numba.config.THREADING_LAYER``
+        before ``import ase_mlg``, or None), ``started_before`` (numba
+        parallel code had started the layer before ``import ase_mlg``),
+        ``problem`` (why TBB did not load, or None), ``fork_hazard`` (why
+        forked workers that run parallel kernels hang here, or None),
         ``serialised`` (threaded launches hold a lock), ``threads``
         (numba's thread count), ``cpus`` (usable by this process),
         ``probe_threads`` (distinct thread ids in the probe, or None), and
@@ -330,8 +431,9 @@ def config(probe=True):
             return None
 
     out = {"threading_layer": numba.threading_layer(),
-           "intended_layer": INTENDED_LAYER, "problem": _PROBLEM,
-           "serialised": SERIALISED, "threads": numba.get_num_threads(),
+           "intended_layer": INTENDED_LAYER, "user_choice": _USER_CHOICE,
+           "started_before": _STARTED_BEFORE, "problem": _PROBLEM,
+           "fork_hazard": _FORK_HAZARD, "serialised": SERIALISED, "threads": numba.get_num_threads(),
            "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
            else os.cpu_count(),
            "probe_threads": None, "python": sys.version.split()[0]}
@@ -351,10 +453,14 @@ def show_config(file=None):
     c = config()
     lines = [f"ase-mlg {c['ase-mlg']}  python {c['python']}  numba {c['numba']}  "
              f"numpy {c['numpy']}  ase {c['ase']}  tbb {c['tbb']}",
-             f"threading layer: {c['threading_layer']} (intended: {c['intended_layer']})"
+             f"threading layer: {c['threading_layer']} (intended: {c['intended_layer']}; "
+             f"user choice: {c['user_choice'] or 'none'}"
+             + ("; started before import ase_mlg" if c["started_before"] else "") + ")"
              + ("; launches serialised (the layer is not thread-safe)" if c["serialised"] else ""),
              f"threads: {c['threads']} numba threads on {c['cpus']} usable CPUs; "
              f"a threaded probe kernel ran on {c['probe_threads']} of them"]
     if c["problem"]:
         lines.append(f"problem: {c['problem']}")
+    if c["fork_hazard"]:
+        lines.append(f"fork: {c['fork_hazard']}")
     print("\n".join(lines), file=file)

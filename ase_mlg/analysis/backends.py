@@ -41,8 +41,9 @@ def _fork_context(option="backend"):
     Forked workers need no ``if __name__ == "__main__":`` guard and see
     what a notebook or ``python -c`` defined.  They are safe with numba's
     TBB and workqueue threading layers (``import ase_mlg`` selects one); not
-    with GNU OpenMP once it has started threads in this process -- then a
-    one-line error says what to do instead of a worker dying.
+    with GNU OpenMP (numba parallel code ran before ``import ase_mlg``, or
+    the user chose it) -- then a one-line error says what to do instead of
+    a worker hanging or dying.
     """
     if not sys.platform.startswith("linux"):
         return None
@@ -54,11 +55,14 @@ def _fork_context(option="backend"):
     if layer == "omp":
         from numba.np.ufunc import omppool
         if getattr(omppool, "openmp_vendor", "GNU") == "GNU":
+            # the layer is fixed for the life of the process: the advice is
+            # for the next run
             raise ValueError(
                 f"{option}: numba's GNU OpenMP threading layer is running in this "
-                "process and cannot be used by forked workers; set "
-                "NUMBA_THREADING_LAYER=tbb (or workqueue), or import ase_mlg "
-                "before any other numba parallel code")
+                "process, and forked workers that run parallel kernels hang or die; "
+                "in a new process set NUMBA_THREADING_LAYER=tbb (or workqueue, or "
+                "leave it unset) and import ase_mlg before any other numba parallel "
+                "code, or use backend='serial' here")
     return multiprocessing.get_context("fork")
 
 
