@@ -56,7 +56,7 @@ above them), and :func:`use_threads` threads work of at least that size:
 
 * ``"sites"``: grid sites of a swap pass, a follow or a template scan;
 * ``"atoms"``: atoms of a query, a gather or a row partition;
-* ``"pairs"``: pairs of a pair-potential sum.
+* ``"pairs"``: pairs of a pair-potential sum or an RDF histogram.
 
 Whatever the thread count, results are reproducible: kernels split work
 into a fixed number of chunks or into independent lines, and reduce in
