@@ -83,25 +83,31 @@ SELECT = {"fastest": "the narrowest passing width, or exact mode where its "
 
 
 def parse_widths(widths):
-    """Template widths as a sorted tuple of distinct odd positive ints.
+    """Template widths as a sorted tuple of distinct odd ints >= 3.
 
     Raises
     ------
     ValueError
         One line starting ``widths:`` for a string, a non-integer or an even
-        or non-positive width.
+        width, or one below 3 (W = 1 is the site alone: no pairs).
     """
     if isinstance(widths, (str, bytes)):
-        raise ValueError(f"widths: expected a sequence of odd ints, got {widths!r}")
+        raise ValueError(f"widths: expected a sequence of odd ints >= 3, got {widths!r}")
     try:
         ws = [int(w) for w in widths]
         if any(w != float(x) for w, x in zip(ws, widths)):
             raise ValueError
     except (TypeError, ValueError):
-        raise ValueError(f"widths: expected odd positive ints, got {widths!r}") from None
-    if not ws or any(w < 1 or w % 2 == 0 for w in ws):
-        raise ValueError(f"widths: expected odd positive ints, got {list(widths)!r}")
+        raise ValueError(f"widths: expected odd ints >= 3, got {widths!r}") from None
+    if not ws or any(not _is_width(w) for w in ws):
+        raise ValueError(f"widths: expected odd ints >= 3 (W = 1 holds no pairs), "
+                         f"got {list(widths)!r}")
     return tuple(sorted(set(ws)))
+
+
+def _is_width(w):
+    # a 1 x 1 x 1 template is the site alone: it finds no pair (E = 0)
+    return w >= 3 and w % 2 == 1
 
 
 def parse_template(template, tolerance=None):
@@ -128,8 +134,9 @@ def parse_template(template, tolerance=None):
     if template is None:
         return None, None
     if isinstance(template, bool) or not isinstance(template, (int, np.integer)) \
-            or template < 1 or template % 2 == 0:
-        raise ValueError(f"template: None (exact) or an odd positive int, got {template!r}")
+            or not _is_width(template):
+        raise ValueError(f"template: None (exact), 'auto' or an odd int >= 3 (W = 1 "
+                         f"holds no pairs), got {template!r}")
     return None, int(template)
 
 
@@ -318,6 +325,10 @@ def _parse_tolerance(tolerance):
         if not math.isfinite(value) or value < 0:
             raise ValueError(f"tolerance[{key!r}]: must be finite and >= 0, "
                              f"got {value}")
+        if key == "missed" and value >= 1:
+            # a fraction of the interacting pairs: 1 allows missing them all
+            raise ValueError(f"tolerance['missed']: a fraction of the interacting "
+                             f"pairs, 0 <= missed < 1, got {value}")
         out[key] = value
     return out
 

@@ -567,6 +567,23 @@ class PairPotential:
         hence .traj, .db and .json files): ``kind`` and its parameters.
 
         ``LennardJones`` and ``Morse`` record their constructor's
+    def replace(self, **changes):
+        """A new potential of the same kind with some constructor arguments
+        changed (what ``MLGCalculator.set(sigma=...)`` uses; a potential
+        itself is never changed in place).
+
+        Raises
+        ------
+        TypeError
+            An argument the kind does not take, or a potential built from a
+            user pair function (no named arguments: build a new one).
+        """
+        if not hasattr(self, '_args'):
+            raise TypeError(f'{type(self).__name__}: a potential built from a pair '
+                            f'function has no named arguments to change '
+                            f'({", ".join(map(repr, sorted(changes)))}); build a new one')
+        return type(self)(**{**self._args, **changes})
+
         arguments; a user pair function is recorded by its module and name,
         with tables keyed by element pair (``"Ar-Kr"``, or ``"any-any"``).
         """
@@ -607,6 +624,24 @@ def _index_arrays(i, j):
     j = np.asarray(j)
     if i.ndim != 1 or i.shape != j.shape:
         raise ValueError(f'i and j must be 1-D of equal length, got shapes '
+class _Argument:
+    """A constructor argument of a potential, read-only: the kernel's
+    tables are computed from it once, so an assignment would be ignored
+    (a silent wrong answer); ``replace`` or ``calc.set`` build a new one."""
+
+    def __set_name__(self, owner, name):
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        return self if obj is None else obj._args[self.name]
+
+    def __set__(self, obj, value):
+        raise AttributeError(
+            f"{type(obj).__name__}.{self.name} is read-only (the pair tables are "
+            f"built from it): use potential.replace({self.name}=...) or "
+            f"calc.set({self.name}=...)")
+
+
                          f'{i.shape} and {j.shape}')
     for name, a in (('i', i), ('j', j)):
         if a.size and a.dtype.kind not in 'iu':
@@ -639,15 +674,15 @@ class LennardJones(PairPotential):
         _refuse_unknown('LennardJones', kwargs,
                         ('sigma', 'epsilon', 'rc', 'ro', 'smooth'))
         sigma = _number('sigma', sigma, 0.0, strict=True)
+    sigma, epsilon, rc, ro, smooth = (_Argument() for _ in range(5))
+
         epsilon = _number('epsilon', epsilon, 0.0)
         rc = 3 * sigma if rc is None else _number('rc', rc, 0.0, strict=True)
         ro = 0.66 * rc if ro is None else _number('ro', ro, 0.0)
         if ro >= rc:
             raise ValueError(f'ro ({ro}) must be smaller than rc ({rc})')
-        self.sigma, self.epsilon, self.rc, self.ro = sigma, epsilon, rc, ro
-        self.smooth = bool(smooth)
         self._args = dict(sigma=sigma, epsilon=epsilon, rc=rc, ro=ro,
-                          smooth=self.smooth)
+                          smooth=bool(smooth))
         if self.smooth:
             super().__init__(lennard_jones_smooth_r2, [sigma, epsilon, rc, ro],
                              rc, squared=True)
@@ -682,14 +717,14 @@ class Morse(PairPotential):
         _refuse_unknown('Morse', kwargs, ('epsilon', 'r0', 'rho0', 'rcut1', 'rcut2'))
         epsilon = _number('epsilon', epsilon, 0.0)
         r0 = _number('r0', r0, 0.0, strict=True)
+    epsilon, r0, rho0, rcut1, rcut2 = (_Argument() for _ in range(5))
+
         rho0 = _number('rho0', rho0, 0.0, strict=True)
         rcut1 = _number('rcut1', rcut1, 0.0)
         rcut2 = _number('rcut2', rcut2, 0.0, strict=True)
         if rcut1 >= rcut2:
             raise ValueError(f'rcut1 ({rcut1}) must be smaller than rcut2 '
                              f'({rcut2})')
-        self.epsilon, self.r0, self.rho0 = epsilon, r0, rho0
-        self.rcut1, self.rcut2 = rcut1, rcut2
         self._args = dict(epsilon=epsilon, r0=r0, rho0=rho0, rcut1=rcut1,
                           rcut2=rcut2)
         super().__init__(morse, [epsilon, r0, rho0, rcut1 * r0, rcut2 * r0],

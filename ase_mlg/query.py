@@ -292,6 +292,28 @@ def _prepare(A, blocks, reach, cand, cf, qlo, qhi):
     return cand, cf, ncand
 
 
+#: Coordinates (Å) beyond this many list radii (at least 1 Å) from the
+#: origin are refused: the query's round-off margin grows with them (1e-9
+#: of the largest coordinate) and with it the images and candidates every
+#: atom visits, so a list there would take minutes, and distances computed
+#: as ASE computes them have lost 1e-7 of the cutoff.  Only an exploding
+#: run or a unit mistake puts atoms there (1e9 Å is 10 cm).
+FAR_RADII = 1e9
+
+
+def _refuse_far(index, rmax):
+    limit = FAR_RADII * max(rmax, 1.0)
+    if not index.scale > limit:
+        return
+    far = np.abs(index.positions).max(axis=1) > limit
+    where = (f"atom(s) {np.flatnonzero(far)[:10].tolist()}{' ...' if far.sum() > 10 else ''}"
+             if far.any() else "the cell vectors")
+    raise ValueError(f"positions: {where} reach {index.scale:.3g} Å from the origin, beyond "
+                     f"{FAR_RADII:.0e} list radii ({limit:.3g} Å), where distances lose "
+                     f"precision; an exploding MD run (check the time step and "
+                     f"overlapping atoms in the start) or a unit mistake?")
+
+
 @njit(cache=True, nogil=True)
 def _scan(b0, b1, blocks, reach, cutoff, fmt, room, out_c):
     """Half scan of blocks ``[b0, b1)``: every unordered pair
@@ -583,6 +605,7 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     # fast distance decides only pairs farther than ftol from the cutoff
     pad = 2.0 * index.dev + 1e-9 * (index.scale + rmax)
     ftol = 1e-9 * (index.scale + rmax)
+    _refuse_far(index, rmax)
     slo, shi = _image_bounds(index, rmax, pad)
     sdim, shifts, dtype = _shift_codes(slo, shi)
     zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])

@@ -2,11 +2,13 @@
 
 A :class:`VerletList` is everything a list kept across MD steps, list
 builds or trajectory frames needs, in one object: the grid that follows the
-atoms (:class:`~ase_mlg.tracker.GridTracker`), the block index the exact
-query scans, the half list itself (:class:`~ase_mlg.pairlist.PairList`,
-whose arrays the next build overwrites), the reference positions and cell
-of the validity test, the atoms' types in row order, and the unit of
-parallel work (:class:`~ase_mlg.partition.RowChunks`, kept with its buffers).
+atoms (:class:`~ase_mlg.tracker.GridTracker`), the half list itself
+(:class:`~ase_mlg.pairlist.PairList`, whose arrays the next build
+overwrites), the reference positions and cell of the validity test, the
+atoms' types in row order, and the unit of parallel work
+(:class:`~ase_mlg.partition.RowChunks`, kept with its buffers).  The block
+index the exact query scans is built for each build and dropped after it
+(it is a tenth of the list's memory, and stale after the next grid update).
 Its :attr:`~VerletList.version` changes at every build: what its users
 compare.
 
@@ -42,12 +44,14 @@ from .query import CUT_RADII, half_list, pair_list
 from .template import template_pairs
 from .tracker import GridTracker
 
-__all__ = ["VerletList", "ABSURD_LISTS"]
+__all__ = ["VerletList", "FAR_LISTS"]
 
 _EYE = np.eye(3)
-#: An atom that moved this many list radii since the list was built, or ten
-#: times the cell edges, has been sent flying (an exploding MD run), not moved.
-ABSURD_LISTS = 100.0
+#: An atom that moved this many list radii since the list was built, plus
+#: ten times the cell edges, is in an unrelated configuration: the list is
+#: rebuilt on a new grid (a large move is a reason to rebuild, never an
+#: error; non-finite positions and coincident atoms are the errors).
+FAR_LISTS = 100.0
 
 
 class VerletList:
@@ -61,7 +65,8 @@ class VerletList:
     skin : float
         Verlet skin, Å: the list holds the pairs with ``d < cutoff + skin``
         and :meth:`update` keeps it while no pair outside it can have come
-        within ``cutoff``.  0 rebuilds it at every update.
+        within ``cutoff``.  0 rebuilds it at every update (per-atom radii
+        take only 0).
     closed : bool
         With ``skin == 0``, hold the pairs at ``d == cutoff`` too (ASE's
         pair potentials keep them); the list radius is then the next float
@@ -94,16 +99,19 @@ class VerletList:
         The list (ranks, compressed rows).
     width : int or None
         The template width of the list, None for the exact query.
-    X : float64[N, 3]
+    X : float64[N, 3] or None
         Positions of the last update in row order, each in the image the
-        grid keeps it in (Å): the pair kernel's positions (None after a
-        bare :meth:`build`).
+        grid keeps it in (Å): the pair kernel's positions.  A bare
+        :meth:`build` gathers them only for a template list with a skin
+        (its rows are partitioned at the cutoff); otherwise None until
+        :meth:`update` or :meth:`allocate`.
     svec : float64[K, 3]
         Cartesian cell shift of every image code at the last update's cell, Å.
     types : int32[N] or None
         Type index of each row.
-    rlist : float
-        List radius, Å (scalar cutoffs).
+    rlist : float or None
+        List radius, Å (scalar cutoffs; None with per-atom radii, whose
+        lists hold no skin: every :meth:`update` rebuilds them).
     timings : dict
         Cumulative seconds of ``check`` (gather and validity test, one
         pass), ``list_build`` (rebuilds, the grid's part included) and
@@ -123,6 +131,10 @@ class VerletList:
             self.cutoff = cutoff
         else:
             if template is not None:
+            if skin > 0:
+                # the radii query cuts at r_i + r_j: a skin would be ignored
+                raise ValueError("skin: per-atom radii lists hold no skin (add it to "
+                                 "the radii, as ase.neighborlist does); use skin=0")
                 raise ValueError("template: per-atom radii need the exact query")
             self.radii = np.ascontiguousarray(cutoff, dtype=np.float64)
             self._cutoff = self.rlist = None
@@ -213,6 +225,8 @@ class VerletList:
 
     def _kept_positions(self, positions, cell):
         """Positions in row order if the list still holds every pair within
+        if self.radii is not None or self.skin == 0.0:
+            return None  # per-atom radii hold no skin: every update rebuilds
         the cutoff (see :meth:`update`), else None."""
         ref_cell = self._ref_cell
         fixed = np.array_equal(cell, ref_cell)
@@ -225,27 +239,20 @@ class VerletList:
         else:
             M = np.ascontiguousarray(np.linalg.solve(ref_cell, cell))
         X, umax = self.pairs.gather_check(positions, cell, self._ref, M)
-        # an atom sent flying is an error to name, not a reason to rebuild
-        self._check_displacement(positions, M, umax, cell)
-        if self.skin == 0.0 or self.cutoff is None:
+        if umax > self._far(cell):
+            # an unrelated configuration (a structure swapped in, a crystal
+            # translated by many cells, far-apart frames): a new grid is
+            # cheaper than sweeping the old one there (NaN is not > far:
+            # the grid names non-finite positions)
+            self._tracker.reset()
             return None
         if fixed:
             return X if umax < 0.5 * self.skin else None
         smin = float(np.linalg.svd(M, compute_uv=False).min())
         return X if smin * self.rlist - 2.0 * umax > self.cutoff else None
 
-    def _check_displacement(self, positions, M, umax, cell):
-        limit = ABSURD_LISTS * self.rlist + 10.0 * float(np.linalg.norm(cell, axis=1).sum())
-        if not umax > limit:  # NaN too: the grid update names those atoms
-            return
-        u = np.linalg.norm(self.pairs.positions(positions, cell) - self._ref @ M, axis=1)
-        bad = np.sort(self.pairs.order[u > limit])
-        raise ValueError(
-            f"positions: atom(s) {bad[:10].tolist()}{' ...' if len(bad) > 10 else ''} "
-            f"moved up to {u.max():.3g} Å since the pair list was built (limit "
-            f"{limit:.3g} Å: {ABSURD_LISTS:g} list radii plus ten times the cell edges); "
-            f"an exploding MD run? Check the time step and overlapping atoms in the "
-            f"start.  calc.reset() accepts an unrelated configuration.")
+    def _far(self, cell):
+        return FAR_LISTS * self.rlist + 10.0 * float(np.linalg.norm(cell, axis=1).sum())
 
     # -- building it ----------------------------------------------------------
     def build(self, positions, cell, pbc, numbers=None):
@@ -319,15 +326,16 @@ class VerletList:
     # -- reading it -----------------------------------------------------------
     def row_partition(self, nthreads=None):
         """The unit of parallel work of a pass over the list: its rows cut
-        into :class:`~ase_mlg.partition.RowChunks` for ``nthreads`` threads
-        (default: the package's count for a list this long), kept with
-        their buffers until the next build or another thread count."""
-        if nthreads is None:
-            nthreads = threads_for("pairs", len(self.pairs))
-        if self._partition is None or self._partition[0] != nthreads:
-            self._partition = (nthreads, row_chunks(self.pairs.rowptr, self.pairs.nbr,
-                                                    nthreads))
-        return self._partition[1]
+        into :class:`~ase_mlg.partition.RowChunks`
+        (:func:`~ase_mlg.partition.row_chunks`: a function of the list
+        alone), kept with their buffers until the next build.  The same
+        object for any ``nthreads`` (accepted for compatibility): the
+        chunks never follow the thread count, so neither do the results;
+        numba's thread count at the pair sum decides how many threads
+        share them."""
+        if self._partition is None:
+            self._partition = row_chunks(self.pairs.rowptr, self.pairs.nbr)
+        return self._partition
 
     def arrays(self, half=False, quantities="ijdDS", orient=None):
         """The list as ``ase.neighborlist`` returns it, at the positions

@@ -239,28 +239,71 @@ def test_unknown_keyword_is_refused():
         MLGCalculator(LennardJones(), neighbor_list=lambda *a: None)
 
 
-# -- an exploding run (issue 12, item 7) ---------------------------------------
+# -- large moves rebuild, never refuse (issue 25, item 7) ----------------------
 
-def test_exploding_md_stops_with_a_clear_error():
-    atoms = argon(6, rattle=0.05, shuffle=False)
-    atoms.positions[1] = atoms.positions[0] + [0.9, 0.0, 0.0]  # overlap
-    atoms.calc = MLGCalculator(LennardJones(**AR))
-    dyn = VelocityVerlet(atoms, 5 * units.fs)
-    with pytest.raises(ValueError, match=r"atom\(s\) \[0, 1\].*exploding MD run"):
-        dyn.run(20)
-    assert atoms.calc.stats["calls"] < 5
+def test_a_dimer_pulled_apart_gives_ase_s_zero():
+    atoms = Atoms("Ar2", positions=[[0, 0, 0], [0, 0, 3.8]])
+    calc = MLGCalculator(LennardJones(**AR))
+    atoms.calc = calc
+    assert atoms.get_potential_energy() < 0
+    atoms.positions[1, 2] = 1000.0
+    ref = atoms.copy()
+    ref.calc = AseLJ(**AR)
+    assert atoms.get_potential_energy() == ref.get_potential_energy() == 0.0
+    atoms.positions[1, 2] = 3.8  # and back: no error kept from the move
+    assert atoms.get_potential_energy() < 0
 
 
-def test_unrelated_configuration_after_reset():
+def test_a_crystal_translated_by_100_cells_is_the_same_crystal():
+    atoms = argon(3, rattle=0.05, shuffle=False)
+    calc = MLGCalculator(LennardJones(**AR))
+    atoms.calc = calc
+    e0 = atoms.get_potential_energy()
+    atoms.positions += 100 * atoms.cell.sum(axis=0)
+    assert atoms.get_potential_energy() == pytest.approx(e0, rel=1e-10)
+    assert_like_ase(atoms, MLGCalculator(LennardJones(**AR)))
+    np.testing.assert_allclose(atoms.get_forces(), ase_ref(atoms)[0], rtol=1e-9, atol=1e-11)
+
+
+def test_far_apart_frames_and_an_unrelated_structure_need_no_reset():
     atoms = argon(3)
     calc = MLGCalculator(LennardJones(**AR))
     atoms.calc = calc
     atoms.get_forces()
-    atoms.positions += 1e5
-    with pytest.raises(ValueError, match="calc.reset"):
-        atoms.get_forces()
-    calc.reset()
-    assert_like_ase(atoms, calc)
+    atoms.positions += 1e5  # an unwrapped trajectory's far frame
+    np.testing.assert_allclose(atoms.get_forces(), ase_ref(atoms)[0], rtol=1e-9, atol=1e-11)
+    other = argon(3, rattle=0.3, seed=7)  # same N, unrelated
+    other.calc = calc
+    f, s, e = ase_ref(other)
+    assert other.get_potential_energy() == pytest.approx(e, rel=1e-11)
+    np.testing.assert_allclose(other.get_forces(), f, rtol=1e-10, atol=1e-12)
+
+
+def test_overlapping_start_runs_as_ase_until_it_cannot():
+    """Atoms squeezed together in the start fly apart as under ASE's LJ
+    (forces equal to ASE's after the kick, the list rebuilt, no error);
+    a start that sends atoms 2**36 cells away ends with the grid's error
+    naming them (ASE goes on at 1e8 Å and beyond); coincident atoms, which
+    ASE answers with nan, are named too."""
+    atoms = argon(3, rattle=0.05, shuffle=False)
+    atoms.positions[1] = atoms.positions[0] + [2.2, 0.0, 0.0]
+    atoms.calc = MLGCalculator(LennardJones(**AR))
+    VelocityVerlet(atoms, 5 * units.fs).run(20)
+    assert atoms.calc.stats["list_builds"] > 1
+    np.testing.assert_allclose(atoms.get_forces(), ase_ref(atoms)[0], rtol=1e-8, atol=1e-9)
+    atoms.positions[1] = atoms.positions[0] + [0.9, 0.0, 0.0]
+    with pytest.raises(ValueError, match=r"^positions: atom\(s\) \[\d"):
+        VelocityVerlet(atoms, 5 * units.fs).run(20)
+    far = argon(3, shuffle=False)
+    far.positions[5] += [3e10, 0.0, 0.0]  # 1e9 list radii: the query's margin would explode
+    far.calc = MLGCalculator(LennardJones(**AR))
+    with pytest.raises(ValueError, match=r"atom\(s\) \[5\] reach 3e\+10 Å.*exploding MD run"):
+        far.get_potential_energy()
+    still = argon(3, shuffle=False)
+    still.positions[1] = still.positions[0]
+    still.calc = MLGCalculator(LennardJones(**AR))
+    with pytest.raises(ValueError, match="atoms (0 and 1|1 and 0) at distance 0"):
+        still.get_potential_energy()
 
 
 def test_exact_list_rows_hold_pairs_within_the_cutoff_first():

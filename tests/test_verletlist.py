@@ -167,10 +167,34 @@ def test_radii_and_cutoff_setter_match_brute_force():
         VerletList(RC, skin=-1.0)
 
 
-def test_an_atom_sent_flying_is_named():
+def test_an_atom_sent_far_rebuilds_on_a_new_grid():
+    """A large move is a reason to rebuild, never an error (issue 25.7):
+    every pair within the cutoff is held after it, from a new grid."""
     pos, cell = _liquid(40, 8.0, 9)
     vl = VerletList.allocate(pos, cell, [True] * 3, RC, skin=SKIN)
     far = pos.copy()
     far[11] += 1e6
-    with pytest.raises(ValueError, match=r"atom\(s\) \[11\]"):
-        vl.update(far, cell, [True] * 3)
+    assert vl.update(far, cell, [True] * 3)
+    assert vl.stats["grid_builds"] == grids + 1
+    fresh = VerletList.allocate(far, cell, [True] * 3, RC, skin=SKIN)
+    assert _held(vl, far, cell) == _held(fresh, far, cell)
+    # the atoms that stayed keep their pairs (brute force before the move)
+    stay = {k for k in _held(vl, far, cell) if 11 not in k[:2]}
+    assert stay == {k for k in _within(pos, cell, [True] * 3, RC + SKIN) if 11 not in k[:2]}
+
+
+def test_radii_lists_update_and_refuse_a_skin():
+    """Per-atom radii: update rebuilds (the list holds no skin) and holds
+    every pair within r_i + r_j; a skin would be ignored, so it is refused
+    (issue 25.9: update crashed on rlist = None)."""
+    pos, cell = _liquid(40, 8.0, 3)
+    radii = np.random.default_rng(4).uniform(0.8, 1.6, 40)
+    vl = VerletList.allocate(pos, cell, [True] * 3, radii)
+    moved = pos + np.random.default_rng(5).normal(scale=0.05, size=pos.shape)
+    assert vl.update(moved, cell, [True] * 3)
+    pair_cut = radii[:, None] + radii[None, :]
+    assert _held(vl, moved, cell) == _within(moved, cell, [True] * 3, pair_cut)
+    assert vl.update(moved, cell, [True] * 3)  # nothing moved: still rebuilt (no skin)
+    with pytest.raises(ValueError, match="skin"):
+        VerletList(radii, skin=0.5)
+    grids = vl.stats["grid_builds"]
