@@ -349,3 +349,24 @@ def test_the_subpackage_exports():
     assert ase_mlg.md.__all__ == ["VelocityVerlet", "Langevin"]
     assert issubclass(ase_mlg.md.VelocityVerlet, ASEVelocityVerlet)
     assert issubclass(ase_mlg.md.Langevin, ASELangevin)
+
+
+def test_compiled_step_checks_the_state_twice_and_calculate_not_again(monkeypatch):
+    """Issue 25: ``check_state`` ran three times per compiled step (the
+    step's reuse of the last forces, the force call after the drift, and
+    again inside ``calculate``).  Now ``calculate`` trusts the caller's
+    check: twice a step, with the forces still equal to ASE's."""
+    atoms = bulk("Ar", "fcc", a=5.26, cubic=True).repeat(3)
+    atoms.rattle(0.05, seed=3)
+    atoms.calc = ase_mlg.MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=6.0))
+    dyn = VelocityVerlet(atoms, 5 * units.fs)
+    dyn.run(1)
+    calls = []
+    real = ase_mlg.MLGCalculator.check_state
+    monkeypatch.setattr(ase_mlg.MLGCalculator, "check_state",
+                        lambda self, a, tol=1e-15: calls.append(1) or real(self, a, tol))
+    dyn.run(10)
+    assert dyn.path == "compiled" and len(calls) == 20
+    ref = atoms.copy()
+    ref.calc = ASELennardJones(sigma=3.405, epsilon=0.0104, rc=6.0)
+    np.testing.assert_allclose(atoms.get_forces(), ref.get_forces(), rtol=1e-10, atol=1e-12)

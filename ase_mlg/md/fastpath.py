@@ -142,9 +142,10 @@ def forces_now(atoms):
     constrains momenta in MD, not forces), so the forces are the
     calculator's.  An :class:`~ase_mlg.MLGCalculator` hands over its own
     result array (read only, never written): the same steps as ASE's
-    ``Calculator.get_property`` without its final copy, and without its
-    ``atoms.copy()`` before ``calculate``, which ``Calculator.calculate``
-    (called first by ``MLGCalculator.calculate``) repeats anyway.  Any other
+    ``Calculator.get_property`` without its final copy and without its
+    ``atoms.copy()`` before ``calculate`` (``MLGCalculator.calculate``
+    brings its stored atoms up to date in place).  ``check_state`` runs
+    once a step, here: ``calculate`` does not repeat it.  Any other
     calculator goes through ``atoms.get_forces(md=True)``.
 
     Parameters
