@@ -117,8 +117,9 @@ class PairList:
         """``(X, umax)``: :meth:`positions`, and in the same pass the
         largest displacement beyond the affine cell map ``M`` since ``ref``
         (this list's ``X`` when it was built), Å; NaN if any
-        position is NaN; 0 without ``ref``.  One read of the positions per
-        MD call for the gather and the list-validity test."""
+        position is NaN; 0 without ``ref``.  The gather and the
+        list-validity test share one pass over the positions (a force call
+        makes others: docs/design.md §6)."""
         n = len(self.order)
         X = np.empty((n, 3))
         cell = np.ascontiguousarray(cell, dtype=np.float64)
