@@ -58,9 +58,14 @@ above them), and :func:`use_threads` threads work of at least that size:
 * ``"atoms"``: atoms of a query, a gather or a row partition;
 * ``"pairs"``: pairs of a pair-potential sum or an RDF histogram.
 
-Whatever the thread count, results are reproducible: kernels split work
-into a fixed number of chunks or into independent lines, and reduce in
-chunk order.
+Whatever the thread count, results are the same bits: kernels split work
+into chunks fixed by the work (never by the thread count) or into
+independent lines, and reduce in chunk order; one thread runs the same
+chunks in chunk order.  The pair sum's chunks are a function of the list
+alone (:func:`ase_mlg.partition.row_chunks`), so forces, energy, stress,
+per-atom energies and virials, and MD trajectories do not depend on
+``NUMBA_NUM_THREADS`` or ``numba.set_num_threads``
+(tests/test_thread_determinism.py).
 
 Twins
 -----

@@ -11,13 +11,23 @@ its force buffer needs to cover only that window, not all N atoms
 start of the grid whose neighbours sit across the seam at its end gets one
 interval that wraps, not two that span everything between.
 
-Buffers then cost ``sum(width) ~ (1 + overlap) N`` entries whatever the
-thread count, instead of ``threads x N``: measured on a 10^5-atom argon
-liquid (rc + skin = 9.5 Å), 1.2 N at 2 chunks and 2.8 N at 16.  The
-reduction sums, for every rank, the buffers of the chunks whose windows
-cover it, in chunk order: the window edges cut the ranks into *segments*
-with a fixed set of covering chunks, so the reduction reads each buffer
-entry once and the result does not depend on which thread ran which chunk.
+Buffers then cost ``sum(width) ~ (1 + overlap) N`` entries, instead of
+``chunks x N``: measured on argon liquids (a = 5.26 Å, rc + skin = 9.5 Å),
+1.5 N at 2 chunks and 3.9 N at 8 on 6,912 atoms, 1.3 N and 3.3 N at 2 and
+16 chunks on 10^5, 2.1 N and 5.3 N at 16 and 64 chunks on 10^6 (a chunk's
+halo of neighbours stays rc + skin deep, so each chunk adds about the same
+width).  The reduction sums, for every rank, the buffers of the chunks
+whose windows cover it, in chunk order: the window edges cut the ranks into
+*segments* with a fixed set of covering chunks, so the reduction reads each
+buffer entry once and the result does not depend on which thread ran which
+chunk.
+
+The chunks are a function of the list alone (:func:`row_chunks`): its pair
+count, its atom count and the window budget, never numba's thread count.
+One thread (``NUMBA_NUM_THREADS=1``, ``numba.set_num_threads(1)``) runs the
+same chunks in chunk order that several threads share, so forces, energy,
+stress and the per-atom energies and virials are the same bits at any
+thread count (tests/test_thread_determinism.py).
 """
 
 from collections import namedtuple
@@ -25,26 +35,31 @@ from collections import namedtuple
 import numpy as np
 from numba import njit, prange
 
-from .parallel import serial_and_parallel, threads_for, use_threads
+from .parallel import THRESHOLDS, serial_and_parallel, use_threads
 
 __all__ = ["Chunks", "RowChunks", "row_chunks", "chunk_count",
-           "CHUNKS_PER_THREAD", "PAIRS_PER_CHUNK", "WINDOW_BUDGET"]
+           "MAX_CHUNKS", "MIN_CHUNKS", "PAIRS_PER_CHUNK", "WINDOW_BUDGET"]
 
-#: Chunks per thread of a threaded pair sum.  Chunks are handed out one at
-#: a time (:class:`ase_mlg.parallel.dynamic_schedule`), so a thread that
-#: wakes late takes fewer; more chunks balance better and cost wider total
-#: windows.
-CHUNKS_PER_THREAD = 4
-#: Fewest pairs a chunk should hold (shorter ones cost more in window
-#: zeroing and reduction than they balance).
+#: Pairs per chunk of a long list: the chunk count grows with the work
+#: (chunks are handed out one at a time,
+#: :class:`ase_mlg.parallel.dynamic_schedule`, so more chunks balance
+#: threads that wake late; shorter ones cost more in window zeroing and
+#: reduction than they balance).
 PAIRS_PER_CHUNK = 20_000
+#: Most chunks of a pair sum: 64 threads get one each on 10^6 atoms
+#: (argon, rc + skin = 9.5 Å: 44 million pairs, 64 windows take 5.3 N).
+MAX_CHUNKS = 64
+#: Fewest chunks of a list long enough to thread
+#: (:data:`ase_mlg.parallel.THRESHOLDS` ``"pairs"``): two windows take at
+#: most 2 N, within any budget.
+MIN_CHUNKS = 2
 #: Most buffer entries, in units of N, that the windows of all chunks may
-#: take before fewer chunks a thread are used (never fewer than one a
-#: thread).  Windows widen as chunks thin (a chunk's halo of neighbours
-#: stays rc + skin deep): on 10^6 argon atoms 8 chunks take 1.4 N, 64 take
-#: 4.4 N and 256 take 13 N, so 64 threads at 4 chunks each would cost 310 MB
-#: of buffers where 64 chunks cost 105 MB.
-WINDOW_BUDGET = 3.0
+#: take: fewer chunks are used where more would take more (never fewer
+#: than :data:`MIN_CHUNKS`).  Windows widen as chunks thin (a chunk's halo
+#: of neighbours stays rc + skin deep): on 10^6 argon atoms 16 chunks take
+#: 2.1 N, 64 take 5.3 N (128 MB of force buffers at 24 bytes an entry) and
+#: 256 take 17 N; on 6,912 atoms 12 chunks take about 5.6 N.
+WINDOW_BUDGET = 6.0
 _NBIN = 4096  # rank bins of the window search: windows over-cover by < 2 bins
 
 #: The arrays the pair kernel reads (one argument for numba).
@@ -58,15 +73,15 @@ _NBIN = 4096  # rank bins of the window search: windows over-cover by < 2 bins
 Chunks = namedtuple("Chunks", "rows lo width offset seg cover_ptr cover thread")
 
 
-def chunk_count(npairs, nthreads):
-    """Chunks of a pair sum of ``npairs`` list pairs on ``nthreads``
-    threads: one on one thread, else :data:`CHUNKS_PER_THREAD` a thread,
-    but no fewer than 2 a thread and no shorter than
-    :data:`PAIRS_PER_CHUNK` where possible."""
-    if nthreads <= 1:
+def chunk_count(npairs):
+    """Chunks of a pair sum of ``npairs`` list pairs before the window
+    budget (:func:`row_chunks`): one below the threshold of threaded pair
+    sums, else one per :data:`PAIRS_PER_CHUNK` pairs, from
+    :data:`MIN_CHUNKS` to :data:`MAX_CHUNKS`.  A function of the list, not
+    of the thread count, so that results are not either."""
+    if npairs < THRESHOLDS["pairs"]:
         return 1
-    by_size = max(2 * nthreads, npairs // PAIRS_PER_CHUNK)
-    return int(max(1, min(CHUNKS_PER_THREAD * nthreads, by_size)))
+    return int(min(MAX_CHUNKS, max(MIN_CHUNKS, npairs // PAIRS_PER_CHUNK)))
 
 
 def _mark_windows(rowptr, nbr, rows, shift, marks, lo, width):
@@ -205,20 +220,27 @@ class RowChunks:
 
 
 def row_chunks(rowptr, nbr, nthreads=None):
-    """The :class:`RowChunks` of a half list for ``nthreads`` threads
-    (default: numba's count on long lists, 1 on short ones):
-    :func:`chunk_count` chunks, halved while their windows take more than
-    :data:`WINDOW_BUDGET` x N buffer entries and a thread has more than one."""
+    """The :class:`RowChunks` of a half list: :func:`chunk_count` chunks,
+    fewer while their windows take more than :data:`WINDOW_BUDGET` x N
+    buffer entries and there are more than :data:`MIN_CHUNKS`.
+
+    A function of the list alone (its pairs, rows and windows), so that
+    every thread count runs the same chunks and gets the same bits;
+    ``nthreads`` is accepted for compatibility and changes nothing (numba's
+    thread count at the call decides how many threads share the chunks)."""
     m = int(rowptr[-1]) if len(rowptr) else 0
     n = max(len(rowptr) - 1, 1)
-    if nthreads is None:
-        nthreads = threads_for("pairs", m)
-    nchunk = chunk_count(m, nthreads)
-    while True:
+    nchunk = chunk_count(m)
+    chunks = RowChunks(rowptr, nbr, nchunk)
+    budget = WINDOW_BUDGET * n
+    while chunks.entries > budget and chunks.nchunk > MIN_CHUNKS:
+        # each chunk adds about the same halo to the windows: aim at the
+        # count that fits, then step down if the model was short
+        halo = (chunks.entries - n) / max(chunks.nchunk - 1, 1)
+        fit = int(1 + (budget - n) / halo) if halo > 0 else chunks.nchunk - 1
+        nchunk = max(MIN_CHUNKS, min(chunks.nchunk - 1, fit))
         chunks = RowChunks(rowptr, nbr, nchunk)
-        if chunks.entries <= WINDOW_BUDGET * n or nchunk <= nthreads:
-            return chunks
-        nchunk = max(nthreads, nchunk // 2)
+    return chunks
 
 
 @njit(cache=True, inline="always")

@@ -460,10 +460,14 @@ class PairPotential:
         chunks : ase_mlg.partition.RowChunks, optional
             The chunks of rows the work is cut into, built for this list
             (``RowChunks(rowptr, nbr, nchunk)``), reused with its buffers
-            from call to call: the calculator keeps one per list.  Default:
-            :func:`ase_mlg.partition.row_chunks` for numba's thread count
-            on long lists (one chunk on short ones), built anew each call.
-            Same chunks, same bits.
+            from call to call: the calculator's
+            :class:`~ase_mlg.verletlist.VerletList` keeps one per list
+            (:meth:`~ase_mlg.verletlist.VerletList.row_partition`).
+            Default: :func:`ase_mlg.partition.row_chunks` of the list (a
+            function of the list alone, one chunk on short lists), built
+            anew each call.  Same chunks, same bits, at any thread count:
+            on one numba thread the serial kernel runs them in chunk order,
+            on more the threaded one shares them out.
 
         Returns
         -------
@@ -478,7 +482,8 @@ class PairPotential:
             raise TypeError(f'chunks must be an ase_mlg.partition.RowChunks '
                             f'of this list or None, got {chunks!r}')
         nchunk = chunks.nchunk
-        kernel = pair_kernel(self.pair, threaded=nchunk > 1)
+        kernel = pair_kernel(self.pair,
+                             threaded=nchunk > 1 and numba.get_num_threads() > 1)
         lst = SumList(X, types, rowptr, nbr, svec, order)
         pot = SumTables(self.squared, self.params, self._cut2, self._rmin2,
                          self._check_rmin, bool(virial or virials))

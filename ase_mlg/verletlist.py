@@ -38,7 +38,6 @@ import numpy as np
 
 from .blocks import BlockIndex, block_for_radius
 from .pairsum import shift_vectors
-from .parallel import threads_for
 from .partition import row_chunks
 from .query import CUT_RADII, half_list, pair_list
 from .template import template_pairs

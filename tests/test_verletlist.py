@@ -137,17 +137,26 @@ def test_skin_zero_rebuilds_every_update_and_closed_keeps_the_cutoff():
     assert vl.version == 1
 
 
-def test_row_partition_belongs_to_one_list():
-    pos, cell = _liquid(200, 12.0, 6)
+@pytest.mark.parametrize("natoms, box", [(200, 12.0), (5000, 35.0)])
+def test_row_partition_belongs_to_one_list(natoms, box):
+    # the chunks are the list's (row_chunks: a function of the list alone),
+    # never the thread count's: one object for any nthreads, kept until the
+    # next build, which cuts its list into chunks of its own
+    from ase_mlg.partition import WINDOW_BUDGET, chunk_count
+    pos, cell = _liquid(natoms, box, 6)
     vl = VerletList.allocate(pos, cell, [True] * 3, RC, skin=SKIN)
-    p1 = vl.row_partition(2)
-    assert vl.row_partition(2) is p1
-    assert vl.row_partition(1) is not p1
-    assert vl.row_partition(1).nchunk == 1
+    p1 = vl.row_partition()
+    assert vl.row_partition(1) is p1 and vl.row_partition(2) is p1
+    assert 1 <= p1.nchunk <= chunk_count(len(vl.pairs))
+    assert (p1.nchunk == 1) == (natoms == 200)  # a short list: one chunk
+    assert p1.entries <= max(WINDOW_BUDGET, 1) * natoms
     vl.build(pos, cell, [True] * 3)
-    assert vl.row_partition(1) is not p1
-    rows = vl.row_partition(2).arrays.rows
-    assert rows[0] == 0 and rows[-1] == vl.pairs.natoms
+    p2 = vl.row_partition(2)
+    assert p2 is not p1 and vl.row_partition(1) is p2
+    assert p2.nchunk == p1.nchunk  # the same list, the same chunks
+    np.testing.assert_array_equal(p2.arrays.rows, p1.arrays.rows)
+    rows = p2.arrays.rows
+    assert rows[0] == 0 and rows[-1] == vl.pairs.natoms and (np.diff(rows) >= 0).all()
 
 
 def test_radii_and_cutoff_setter_match_brute_force():
