@@ -7,7 +7,10 @@ asked, per-atom energies and virials.  Threads follow :mod:`ase_mlg.parallel`
 and :mod:`ase_mlg.partition`: chunks of rows with equal pair counts handed
 out one at a time, a force buffer per chunk covering only the window of
 ranks the chunk touches, windows summed per rank in chunk order, so the
-same chunks give the same bits (docs/design.md §8).
+same chunks give the same bits whichever thread ran which chunk, and the
+serial twin running them in chunk order gives them too; the chunks are the
+list's (:func:`ase_mlg.partition.row_chunks`), not the thread count's, so
+results do not depend on it (docs/design.md §8).
 
 The module's vocabulary
 -----------------------

@@ -47,7 +47,8 @@ __all__ = ["Chunks", "RowChunks", "row_chunks", "chunk_count",
 #: reduction than they balance).
 PAIRS_PER_CHUNK = 20_000
 #: Most chunks of a pair sum: 64 threads get one each on 10^6 atoms
-#: (argon, rc + skin = 9.5 Å: 44 million pairs, 64 windows take 5.3 N).
+#: (argon at a = 5.26 Å, rc + skin = 9.5 Å: 44 million pairs, 64 windows
+#: take 5.3 N; at 5.72 Å 39 million and 5.4 N).
 MAX_CHUNKS = 64
 #: Fewest chunks of a list long enough to thread
 #: (:data:`ase_mlg.parallel.THRESHOLDS` ``"pairs"``): two windows take at
@@ -57,8 +58,12 @@ MIN_CHUNKS = 2
 #: take: fewer chunks are used where more would take more (never fewer
 #: than :data:`MIN_CHUNKS`).  Windows widen as chunks thin (a chunk's halo
 #: of neighbours stays rc + skin deep): on 10^6 argon atoms 16 chunks take
-#: 2.1 N, 64 take 5.3 N (128 MB of force buffers at 24 bytes an entry) and
-#: 256 take 17 N; on 6,912 atoms 12 chunks take about 5.6 N.
+#: 2.1 N, 64 take 5.3 N (128 MB of force buffers at 24 bytes an entry, 430
+#: MB with per-atom energies and virials at 80) and 256 take 17 N; 6 N is
+#: what 64 chunks need there (3 N would leave 29).  Smaller lists fill the
+#: budget with fewer chunks: 13 on 6,912 atoms, 35 on 108,000 (5.9 N each).
+#: One thread runs the same windows (validation/chunk_cost.py measures the
+#: cost against one chunk).
 WINDOW_BUDGET = 6.0
 _NBIN = 4096  # rank bins of the window search: windows over-cover by < 2 bins
 
