@@ -567,11 +567,6 @@ class PairPotential:
             what = f'energy {e}, dE/dr {dedr}'
         return ValueError(f'{where}: non-finite pair energy or force ({what})')
 
-    def todict(self):
-        """The potential as JSON-serialisable data (for ``calc.todict()``,
-        hence .traj, .db and .json files): ``kind`` and its parameters.
-
-        ``LennardJones`` and ``Morse`` record their constructor's
     def replace(self, **changes):
         """A new potential of the same kind with some constructor arguments
         changed (what ``MLGCalculator.set(sigma=...)`` uses; a potential
@@ -589,6 +584,11 @@ class PairPotential:
                             f'({", ".join(map(repr, sorted(changes)))}); build a new one')
         return type(self)(**{**self._args, **changes})
 
+    def todict(self):
+        """The potential as JSON-serialisable data (for ``calc.todict()``,
+        hence .traj, .db and .json files): ``kind`` and its parameters.
+
+        ``LennardJones`` and ``Morse`` record their constructor's
         arguments; a user pair function is recorded by its module and name,
         with tables keyed by element pair (``"Ar-Kr"``, or ``"any-any"``).
         """
@@ -624,11 +624,6 @@ def _refuse_unknown(name, kwargs, accepted):
                         f"{', '.join(accepted)}")
 
 
-def _index_arrays(i, j):
-    i = np.asarray(i)
-    j = np.asarray(j)
-    if i.ndim != 1 or i.shape != j.shape:
-        raise ValueError(f'i and j must be 1-D of equal length, got shapes '
 class _Argument:
     """A constructor argument of a potential, read-only: the kernel's
     tables are computed from it once, so an assignment would be ignored
@@ -647,6 +642,11 @@ class _Argument:
             f"calc.set({self.name}=...)")
 
 
+def _index_arrays(i, j):
+    i = np.asarray(i)
+    j = np.asarray(j)
+    if i.ndim != 1 or i.shape != j.shape:
+        raise ValueError(f'i and j must be 1-D of equal length, got shapes '
                          f'{i.shape} and {j.shape}')
     for name, a in (('i', i), ('j', j)):
         if a.size and a.dtype.kind not in 'iu':
@@ -674,13 +674,13 @@ class LennardJones(PairPotential):
         True: energy times a C^1 cutoff function going 1 -> 0 on [ro, rc].
     """
 
+    sigma, epsilon, rc, ro, smooth = (_Argument() for _ in range(5))
+
     def __init__(self, sigma=1.0, epsilon=1.0, rc=None, ro=None,
                  smooth=False, **kwargs):
         _refuse_unknown('LennardJones', kwargs,
                         ('sigma', 'epsilon', 'rc', 'ro', 'smooth'))
         sigma = _number('sigma', sigma, 0.0, strict=True)
-    sigma, epsilon, rc, ro, smooth = (_Argument() for _ in range(5))
-
         epsilon = _number('epsilon', epsilon, 0.0)
         rc = 3 * sigma if rc is None else _number('rc', rc, 0.0, strict=True)
         ro = 0.66 * rc if ro is None else _number('ro', ro, 0.0)
@@ -717,13 +717,13 @@ class Morse(PairPotential):
         Start and end of the cutoff function, **in units of r0**.
     """
 
+    epsilon, r0, rho0, rcut1, rcut2 = (_Argument() for _ in range(5))
+
     def __init__(self, epsilon=1.0, r0=1.0, rho0=6.0, rcut1=1.9, rcut2=2.7,
                  **kwargs):
         _refuse_unknown('Morse', kwargs, ('epsilon', 'r0', 'rho0', 'rcut1', 'rcut2'))
         epsilon = _number('epsilon', epsilon, 0.0)
         r0 = _number('r0', r0, 0.0, strict=True)
-    epsilon, r0, rho0, rcut1, rcut2 = (_Argument() for _ in range(5))
-
         rho0 = _number('rho0', rho0, 0.0, strict=True)
         rcut1 = _number('rcut1', rcut1, 0.0)
         rcut2 = _number('rcut2', rcut2, 0.0, strict=True)

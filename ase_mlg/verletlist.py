@@ -130,11 +130,11 @@ class VerletList:
             self.cutoff = cutoff
         else:
             if template is not None:
+                raise ValueError("template: per-atom radii need the exact query")
             if skin > 0:
                 # the radii query cuts at r_i + r_j: a skin would be ignored
                 raise ValueError("skin: per-atom radii lists hold no skin (add it to "
                                  "the radii, as ase.neighborlist does); use skin=0")
-                raise ValueError("template: per-atom radii need the exact query")
             self.radii = np.ascontiguousarray(cutoff, dtype=np.float64)
             self._cutoff = self.rlist = None
         self.template = template
@@ -224,9 +224,9 @@ class VerletList:
 
     def _kept_positions(self, positions, cell):
         """Positions in row order if the list still holds every pair within
+        the cutoff (see :meth:`update`), else None."""
         if self.radii is not None or self.skin == 0.0:
             return None  # per-atom radii hold no skin: every update rebuilds
-        the cutoff (see :meth:`update`), else None."""
         ref_cell = self._ref_cell
         fixed = np.array_equal(cell, ref_cell)
         if fixed:

@@ -181,6 +181,7 @@ def test_an_atom_sent_far_rebuilds_on_a_new_grid():
     every pair within the cutoff is held after it, from a new grid."""
     pos, cell = _liquid(40, 8.0, 9)
     vl = VerletList.allocate(pos, cell, [True] * 3, RC, skin=SKIN)
+    grids = vl.stats["grid_builds"]
     far = pos.copy()
     far[11] += 1e6
     assert vl.update(far, cell, [True] * 3)
@@ -206,4 +207,3 @@ def test_radii_lists_update_and_refuse_a_skin():
     assert vl.update(moved, cell, [True] * 3)  # nothing moved: still rebuilt (no skin)
     with pytest.raises(ValueError, match="skin"):
         VerletList(radii, skin=0.5)
-    grids = vl.stats["grid_builds"]
