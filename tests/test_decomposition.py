@@ -1,0 +1,230 @@
+"""ase_mlg.decomposition against brute force (issue 23, item 5).
+
+Small systems, any P: every site and atom owned once, each region a run of
+its parent's sweep order, the owned weight within the promised bound, the
+halo equal to a brute-force halo over all periodic images (tests/naive.py),
+the spatial grid's owners floor(f P_a).  The checker is shown to reject
+broken decompositions, so the properties can fail.
+"""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from ase_mlg import MLG
+from ase_mlg.decomposition import (Pairs, factor_lammps, factor_mlg,
+                                   mlg_decomposition, spatial_decomposition)
+from naive import pairs as naive_pairs
+
+REACH = 3.0  # Å: a few neighbours per atom in the systems below
+
+
+def _system(kind, n, seed, pbc):
+    """Positions and cell (Å): "uniform" points in a cube, 1 atom per 8 Å^3,
+    or "clustered": 80 % of them in one Gaussian blob."""
+    rng = np.random.default_rng(seed)
+    L = (8.0 * n) ** (1 / 3)
+    if kind == "uniform":
+        x = rng.random((n, 3)) * L
+    else:
+        x = (0.5 * L + rng.normal(scale=0.12 * L, size=(n, 3))) % L
+        x[: n // 5] = rng.random((n // 5, 3)) * L
+    return x, np.eye(3) * L, pbc
+
+
+def _sweep_rank(shape, major):
+    i, j, k = np.indices(shape).reshape(3, -1)
+    nx, ny, nz = shape
+    if major == 0:
+        return (i * ny + j) * nz + k
+    if major == 1:
+        return (j * nx + i) * nz + k
+    return (k * nx + i) * ny + j
+
+
+def check_regions(regions, shape, dims):
+    """Assert that the sites of ``regions`` (one array per rank) cover the
+    grid exactly once, and that each rank's region is a run of its parent's
+    sweep order: ranks p*Py*Pz... along C order, then (axis 1, 0, 2) inside
+    each slab, then (axis 2, 0, 1) inside each row (nested intervals)."""
+    nsites = int(np.prod(shape))
+    allsites = np.concatenate([np.asarray(r, np.int64) for r in regions])
+    assert len(allsites) == nsites, "a site is owned twice or not at all"
+    assert np.array_equal(np.sort(allsites), np.arange(nsites)), "a site is owned twice"
+    owner = np.empty(nsites, np.int64)
+    for r, reg in enumerate(regions):
+        owner[reg] = r
+    px, py, pz = dims
+    levels = [(0, owner // (py * pz), None), (1, owner // pz % py, owner // (py * pz)),
+              (2, owner % pz, owner // pz)]
+    for major, label, parent in levels:
+        key = _sweep_rank(shape, major)
+        groups = [np.arange(nsites)] if parent is None else [
+            np.flatnonzero(parent == g) for g in np.unique(parent)]
+        for grp in groups:
+            seq = grp[np.argsort(key[grp], kind="stable")]
+            assert (np.diff(label[seq]) >= 0).all(), f"a region is not a run (level {major})"
+
+
+def _regions(dec):
+    return [np.flatnonzero(dec.site_owner == r) for r in range(dec.nranks)]
+
+
+def brute_halo(x, cell, pbc, owner, nranks):
+    """Atoms of other ranks within REACH of a rank's atoms, any image, once."""
+    halo = [set() for _ in range(nranks)]
+    for i, j, _ in naive_pairs(x, cell, pbc, REACH):
+        if owner[i] != owner[j]:
+            halo[owner[i]].add(j)
+    return np.array([len(h) for h in halo])
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(kind=st.sampled_from(["uniform", "clustered"]), n=st.integers(8, 120),
+       pbc=st.tuples(st.booleans(), st.booleans(), st.booleans()),
+       nranks=st.integers(1, 12), weight=st.sampled_from(["work", "pairs", "atoms"]),
+       seed=st.integers(0, 2 ** 16))
+def test_partition_against_brute_force(kind, n, pbc, nranks, weight, seed):
+    x, cell, pbc = _system(kind, n, seed, pbc)
+    grid = MLG(x, cell, pbc)
+    nranks = min(nranks, n)
+    pr = Pairs(grid, REACH)
+    # the list's degrees are the brute-force ones (each periodic image)
+    ref = naive_pairs(x, cell, pbc, REACH)
+    deg = np.bincount([i for i, _, _ in ref], minlength=n)
+    assert np.array_equal(pr.degree, deg) and 2 * len(pr) == len(ref)
+    dec = mlg_decomposition(grid, nranks, pr, weight=weight)
+    check_regions(_regions(dec), grid.shape, dec.dims)
+    site_of = grid.sites.ravel()
+    filled = site_of >= 0
+    assert np.array_equal(dec.owner[site_of[filled]], dec.site_owner[filled])
+    assert np.array_equal(dec.natoms, np.bincount(dec.owner, minlength=nranks))
+    assert np.allclose(dec.pairs, 0.5 * np.bincount(dec.owner, deg, minlength=nranks))
+    # the promised bound on the owned weight
+    per_atom = {"pairs": 0.5 * deg, "atoms": np.ones(n),
+                "work": 0.5 * deg / max(0.5 * deg.mean(), 1e-300) + 1.0}[weight]
+    if weight == "pairs" and not deg.any():
+        per_atom = np.ones(n)
+    total = per_atom.sum()
+    assert dec.work.sum() == pytest.approx(total)
+    px, py, pz = dec.dims
+    bound = per_atom.max() * (1 + 1 / pz + 1 / (py * pz))
+    assert np.abs(dec.work - total / nranks).max() <= bound + 1e-9 * total
+    assert np.array_equal(dec.halo, brute_halo(x, cell, pbc, dec.owner, nranks))
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(1, 100), pbc=st.tuples(st.booleans(), st.booleans(), st.booleans()),
+       nranks=st.integers(1, 30), seed=st.integers(0, 2 ** 16))
+def test_spatial_grid_against_brute_force(n, pbc, nranks, seed):
+    x, cell, pbc = _system("uniform", n, seed, pbc)
+    x = x + np.where(pbc, 1.5 * cell[0, 0], 0.0) * (np.arange(n) % 3 == 0)[:, None]
+    grid = MLG(x, cell, pbc)
+    nranks = min(nranks, n)
+    dec = spatial_decomposition(grid, nranks, reach=REACH)
+    f = x @ np.linalg.inv(cell)
+    f = np.where(pbc, f % 1.0, np.clip(f, 0.0, 1.0))
+    idx = np.minimum(np.floor(f * dec.dims).astype(int), np.array(dec.dims) - 1)
+    px, py, pz = dec.dims
+    assert np.array_equal(dec.owner, (idx[:, 0] * py + idx[:, 1]) * pz + idx[:, 2])
+    assert np.array_equal(dec.halo, brute_halo(x, cell, pbc, dec.owner, nranks))
+
+
+def test_balance_reaches_the_target_where_achievable():
+    """Owned atoms and pairs within 1.05 of the mean: both at once on
+    uniform points (weight "work"); on clustered ones, whose dense blob has
+    more pairs an atom, one at a time (its own weight): no contiguous runs
+    balance two weights whose ratio varies along the sweep."""
+    x, cell, pbc = _system("uniform", 3000, 1, (True, True, True))
+    grid = MLG(x, cell, pbc)
+    pr = Pairs(grid, REACH)
+    for nranks in (2, 3, 8, 12):
+        stats = mlg_decomposition(grid, nranks, pr).imbalance()
+        assert stats["atoms"] <= 1.05 and stats["pairs"] <= 1.05, (nranks, stats)
+    x, cell, pbc = _system("clustered", 3000, 1, (True, True, True))
+    grid = MLG(x, cell, pbc)
+    pr = Pairs(grid, REACH)
+    for nranks in (2, 3, 8, 12):
+        for weight in ("atoms", "pairs"):
+            stats = mlg_decomposition(grid, nranks, pr, weight=weight).imbalance()
+            assert stats[weight] <= 1.05, (nranks, weight, stats)
+
+
+def test_regions_of_a_uniform_lattice_are_face_connected():
+    m = 12
+    x = (np.indices((m, m, m)).reshape(3, -1).T + 0.5) * 2.0
+    grid = MLG(x, np.eye(3) * 2.0 * m, True)
+    for nranks in (2, 4, 8, 27):
+        dec = mlg_decomposition(grid, nranks, reach=REACH, weight="atoms")
+        own = dec.site_owner.reshape(grid.shape)
+        for r in range(nranks):
+            cells = set(zip(*np.nonzero(own == r)))
+            seen, todo = set(), [next(iter(cells))]
+            while todo:
+                c = todo.pop()
+                if c in seen:
+                    continue
+                seen.add(c)
+                for a in range(3):
+                    for s in (-1, 1):
+                        nb = list(c)
+                        nb[a] += s
+                        if tuple(nb) in cells:
+                            todo.append(tuple(nb))
+            assert seen == cells, (nranks, r)
+
+
+def test_checker_rejects_broken_decompositions():
+    x, cell, pbc = _system("uniform", 200, 3, (True, True, True))
+    grid = MLG(x, cell, pbc)
+    dec = mlg_decomposition(grid, 8, reach=REACH)
+    regions = _regions(dec)
+    check_regions(regions, grid.shape, dec.dims)
+    dup = [r.copy() for r in regions]
+    dup[3] = np.append(dup[3], dup[0][0])  # one site owned by ranks 0 and 3
+    with pytest.raises(AssertionError, match="twice"):
+        check_regions(dup, grid.shape, dec.dims)
+    swap = [r.copy() for r in regions]
+    swap[0][0], swap[7][0] = swap[7][0], swap[0][0]  # far apart: not runs
+    with pytest.raises(AssertionError, match="not a run"):
+        check_regions(swap, grid.shape, dec.dims)
+    # a halo off by one atom is caught by the brute force
+    assert not np.array_equal(dec.halo + (np.arange(8) == 2),
+                              brute_halo(x, cell, pbc, dec.owner, 8))
+
+
+def test_factorisations():
+    # slabs for a few ranks, blocks for many; P_a <= N_a where possible
+    assert factor_mlg((100, 100, 100), (3.4,) * 3, 2, 9.5) == (2, 1, 1)
+    assert factor_mlg((100, 100, 100), (3.4,) * 3, 4, 9.5) == (4, 1, 1)
+    assert factor_mlg((100, 100, 100), (3.4,) * 3, 64, 9.5) == (4, 4, 4)
+    assert factor_mlg((100, 100, 300), (3.4, 3.4, 1.1), 2, 9.5) in {(2, 1, 1), (1, 2, 1)}
+    assert factor_mlg((2, 50, 50), (1.0,) * 3, 8, 3.0)[0] <= 2
+    # LAMMPS: the sub-box of least surface
+    assert factor_lammps((10, 10, 10), 8) == (2, 2, 2)
+    assert factor_lammps((40, 10, 10), 4) == (4, 1, 1)
+    assert factor_lammps((10, 10, 10), 64) == (4, 4, 4)
+    assert factor_lammps((10, 10, 10), 2) == (1, 1, 2)
+
+
+def test_bad_rank_counts_are_refused():
+    x, cell, pbc = _system("uniform", 10, 0, (True, True, True))
+    grid = MLG(x, cell, pbc)
+    nsites = int(np.prod(grid.shape))
+    for bad in (0, -3):
+        with pytest.raises(ValueError, match="P: must be >= 1"):
+            mlg_decomposition(grid, bad, reach=REACH)
+        with pytest.raises(ValueError, match="P: must be >= 1"):
+            spatial_decomposition(grid, bad, reach=REACH)
+    with pytest.raises(ValueError, match=f"P={nsites + 1} ranks on too few sites: "
+                                         f"the grid has {nsites} sites"):
+        mlg_decomposition(grid, nsites + 1, reach=REACH)
+    holed = MLG(x, cell, pbc, shape=(3, 2, 2))  # 12 sites, 10 atoms
+    with pytest.raises(ValueError, match="P=11 ranks on too few atoms"):
+        mlg_decomposition(holed, 11, reach=REACH)
+    with pytest.raises(TypeError, match="P"):
+        mlg_decomposition(grid, 2.0, reach=REACH)
+    with pytest.raises(ValueError, match="dims"):
+        mlg_decomposition(grid, 4, reach=REACH, dims=(2, 1, 1))
+    with pytest.raises(ValueError, match="weight"):
+        mlg_decomposition(grid, 2, reach=REACH, weight="mass")
