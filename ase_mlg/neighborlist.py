@@ -552,12 +552,18 @@ class NeighborList:
         self.nl = primitive(cutoffs, skin, sorted,
                             self_interaction=self_interaction,
                             bothways=bothways)
+        self._checked = None  # (cell, pbc) last checked by Box
 
     def update(self, atoms):
         """Bring the list up to date with ``atoms``; True if it was rebuilt."""
-        Box(atoms.cell.array, atoms.pbc)  # ValueError on a zero-volume periodic cell
-        return self.nl.update(atoms.pbc, atoms.get_cell(complete=True),
-                              atoms.positions)
+        cell, pbc = atoms.cell.array, atoms.pbc
+        last = self._checked
+        if last is None or not (np.array_equal(cell, last[0]) and np.array_equal(pbc, last[1])):
+            # ValueError on a zero-volume periodic cell; checked once per
+            # cell (it was 70% of an update with nothing moved)
+            Box(cell, pbc)
+            self._checked = (cell.copy(), pbc.copy())
+        return self.nl.update(pbc, atoms.get_cell(complete=True), atoms.positions)
 
     def get_neighbors(self, a):
         """(indices, offsets) of the neighbours of atom ``a``."""

@@ -634,3 +634,16 @@ def test_sorted_order_is_ases_exactly(case, bothways, self_int):
         got, want = _lists(ours, cut, atoms, **kw), _lists(ref, cut, atoms, **kw)
         assert len(want[0]) > 0
         assert got == want
+
+
+def test_update_checks_a_changed_cell_again():
+    """NeighborList.update checks the cell once per cell (not on every call
+    with nothing moved): a cell changed to a singular one is still refused."""
+    from ase.build import bulk
+    from ase_mlg import NeighborList
+    atoms = bulk("Cu", "fcc", a=3.6, cubic=True)
+    nl = NeighborList([1.3] * len(atoms), skin=0.3, self_interaction=False, bothways=True)
+    assert nl.update(atoms) and not nl.update(atoms)
+    atoms.cell[2] = atoms.cell[0]
+    with pytest.raises(ValueError, match="cell"):
+        nl.update(atoms)
