@@ -6,7 +6,7 @@ compilation or cache load under its compiler lock (an event); the timed loops of
 the demo (the grid's walk and the NVE MD, the two loops behind its
 "µs/atom/step" and "ms/step" figures) are found through their progress-bar
 iterables.  None of those events may fall inside a timed loop, and the
-loops' CPU times on the cold and the warm run must agree within 1.5x (CPU
+loops' CPU times on the cold and the warm run must agree within 2x (CPU
 time: the machine's load moves wall time by more than that between runs).
 The runs need processes of their own (this one has compiled or loaded the
 kernels already); their cache is removed when they are done.
@@ -94,7 +94,10 @@ def test_cold_and_warm_demo_time_the_same_work(tmp_path):
         assert cold["inside"][desc] == 0, (desc, cold)
         assert warm["inside"][desc] == 0, (desc, warm)
         ratio = cold["cpu"][desc] / warm["cpu"][desc]
-        assert 1 / 1.5 < ratio < 1.5, (desc, cold["cpu"], warm["cpu"])
+        # a kernel compiled inside a loop costs >= 0.3 s against loops of
+        # 0.03-0.06 s (ratio > 5); 2x leaves room for a cold process's first
+        # touches (1.69x seen once in a full oldest-pins run, 1.5x the old bound)
+        assert 1 / 2 < ratio < 2, (desc, cold["cpu"], warm["cpu"])
     # the warm-ups went through a list rebuild and swap sweeps
     assert cold["md_warmup"]["list_builds"] >= 2 and cold["md_warmup"]["sweeps"] > 0
     assert cold["warmup"] > warm["warmup"]
