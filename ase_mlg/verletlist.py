@@ -225,8 +225,8 @@ class VerletList:
     def _kept_positions(self, positions, cell):
         """Positions in row order if the list still holds every pair within
         the cutoff (see :meth:`update`), else None."""
-        if self.radii is not None or self.skin == 0.0:
-            return None  # per-atom radii hold no skin: every update rebuilds
+        if self.skin == 0.0:
+            return None  # also every per-atom radii list: they take no skin
         ref_cell = self._ref_cell
         fixed = np.array_equal(cell, ref_cell)
         if fixed:
@@ -238,20 +238,20 @@ class VerletList:
         else:
             M = np.ascontiguousarray(np.linalg.solve(ref_cell, cell))
         X, umax = self.pairs.gather_check(positions, cell, self._ref, M)
-        if umax > self._far(cell):
+        if fixed:
+            kept = umax < 0.5 * self.skin
+        else:
+            smin = float(np.linalg.svd(M, compute_uv=False).min())
+            kept = smin * self.rlist - 2.0 * umax > self.cutoff
+        if kept:
+            return X
+        if umax > FAR_LISTS * self.rlist + 10.0 * float(np.linalg.norm(cell, axis=1).sum()):
             # an unrelated configuration (a structure swapped in, a crystal
             # translated by many cells, far-apart frames): a new grid is
             # cheaper than sweeping the old one there (NaN is not > far:
             # the grid names non-finite positions)
             self._tracker.reset()
-            return None
-        if fixed:
-            return X if umax < 0.5 * self.skin else None
-        smin = float(np.linalg.svd(M, compute_uv=False).min())
-        return X if smin * self.rlist - 2.0 * umax > self.cutoff else None
-
-    def _far(self, cell):
-        return FAR_LISTS * self.rlist + 10.0 * float(np.linalg.norm(cell, axis=1).sum())
+        return None
 
     # -- building it ----------------------------------------------------------
     def build(self, positions, cell, pbc, numbers=None):
