@@ -169,7 +169,7 @@ class MLGCalculator(Calculator):
         cell, vl = atoms.cell.array, self.verlet_list
         vl.update(positions, cell, atoms.pbc, atoms.numbers)
         t0 = time.perf_counter()
-        pl, chunks = vl.pairs, vl.row_partition()
+        pl, chunks = vl.pairs, vl.chunks()
         # the virial costs a tenth of the loop: only for callers that ask
         # for stress (once asked, always: barostats ask after the forces)
         self._stress_wanted |= "stress" in properties or "stresses" in properties

@@ -135,14 +135,14 @@ class PairList:
         umax = np.nan if np.isnan(worst).any() else float(worst.max(initial=0.0))
         return X, umax
 
-    def partition(self, X, svec, radius):
+    def inner_first(self, X, svec, radius):
         """Reorder every row so that its pairs within ``radius`` (Å) at
         positions ``X`` (row order, see :meth:`positions`) come first, in
         place.  The pair loop tests each pair against the cutoff; with the
         pairs inside it first that branch is predicted (measured: the LJ
         sum 32% faster on 10^4 atoms).  The list stays the same set."""
         n = len(self.order)
-        part = _partition_threaded if use_threads("atoms", n) else _partition_serial
+        part = _inner_first_threaded if use_threads("atoms", n) else _inner_first_serial
         part(self.rowptr, self.nbr, self.code, X, svec, radius * radius,
              min(max(n, 1), 64))
 
@@ -307,7 +307,7 @@ def pair_vector(X, svec, t, u, k):
             (X[u, 2] - X[t, 2]) + svec[k, 2])
 
 
-def _partition_rows(rowptr, nbr, code, X, svec, r2max, nchunk):
+def _inner_first_rows(rowptr, nbr, code, X, svec, r2max, nchunk):
     n = rowptr.shape[0] - 1
     for ch in prange(nchunk):
         # one scratch per chunk of rows, not per row
@@ -339,7 +339,7 @@ def _partition_rows(rowptr, nbr, code, X, svec, r2max, nchunk):
                 code[w + e] = out_c[e]
 
 
-_partition_serial, _partition_threaded = serial_and_parallel(_partition_rows)
+_inner_first_serial, _inner_first_threaded = serial_and_parallel(_inner_first_rows)
 
 
 @njit(cache=True, nogil=True)

@@ -4,12 +4,12 @@ The kernel walks the rows of the half list in grid order, computes
 ``D = X[u] - X[t] + S @ cell`` in registers in ASE's operation order, calls
 the pair function (inlined), and accumulates energy, forces and, when
 asked, per-atom energies and virials.  Threads follow :mod:`ase_mlg.parallel`
-and :mod:`ase_mlg.partition`: chunks of rows with equal pair counts handed
+and :mod:`ase_mlg.chunks`: chunks of rows with equal pair counts handed
 out one at a time, a force buffer per chunk covering only the window of
 ranks the chunk touches, windows summed per rank in chunk order, so the
 same chunks give the same bits whichever thread ran which chunk, and the
 serial twin running them in chunk order gives them too; the chunks are the
-list's (:func:`ase_mlg.partition.row_chunks`), not the thread count's, so
+list's (:func:`ase_mlg.chunks.row_chunks`), not the thread count's, so
 results do not depend on it (docs/design.md §8).
 
 The module's vocabulary
@@ -21,7 +21,7 @@ reads the fields by name; the kernel copies them to locals before its
 * :class:`SumList` -- the half list and the positions in row order (the
   codes, whose dtype varies, beside it);
 * :class:`SumTables` -- the potential's tables and what to accumulate;
-* :class:`ase_mlg.partition.Chunks` -- the chunks of rows and their windows;
+* :class:`ase_mlg.chunks.Chunks` -- the chunks of rows and their windows;
 * :class:`SumOutputs` -- the chunk buffers and the per-atom outputs.
 
 :func:`pair_kernel` returns the kernel for a pair function, serial or
@@ -45,7 +45,7 @@ from numba import prange
 
 from .pairfunctions import lennard_jones_shifted_r2, lennard_jones_smooth_r2, morse
 from .pairlist import pair_vector
-from .partition import local_rank
+from .chunks import local_rank
 from .parallel import serial_and_parallel, use_threads
 
 __all__ = ["SumList", "SumTables", "SumOutputs", "PairError",
@@ -93,7 +93,7 @@ SumTables = namedtuple("SumTables",
 
 #: What a pair sum writes: ``fbuf`` float64[E, 3], ``ebuf`` float64[E or 0],
 #: ``vbuf`` float64[E or 0, 6] (the chunks' window buffers,
-#: :meth:`ase_mlg.partition.RowChunks.buffers`: zero-length ``ebuf`` /
+#: :meth:`ase_mlg.chunks.RowChunks.buffers`: zero-length ``ebuf`` /
 #: ``vbuf`` when no per-atom energies / virials are wanted), ``part``
 #: float64[C, 9] (per chunk: energy (eV), virial (6, eV), the sum of every
 #: pair's ``dE/dr / r`` (not finite if any pair energy, force or distance
@@ -126,7 +126,7 @@ def _pair_sum(pair, lst, code, pot, chunks, out):
     code : uint8[M] or int32[M]
         The image code of every pair.
     pot : SumTables
-    chunks : ase_mlg.partition.Chunks
+    chunks : ase_mlg.chunks.Chunks
         The chunks, their windows and the reduction's segments; the kernel
         writes ``chunks.thread`` (the numba thread of each chunk).
     out : SumOutputs
@@ -458,7 +458,7 @@ def pair_kernel(pair, threaded):
     -------
     callable ``kernel(lst, code, pot, chunks, out)``
         Takes a :class:`SumList`, the image codes, a :class:`SumTables`, an
-        :class:`ase_mlg.partition.Chunks` and a :class:`SumOutputs`, fills
+        :class:`ase_mlg.chunks.Chunks` and a :class:`SumOutputs`, fills
         ``out`` and returns None.  For a built-in pair function
         (:func:`is_built_in`) the cached numba dispatcher itself; else
         ``functools.partial(generic, pair)`` with ``generic`` the generic

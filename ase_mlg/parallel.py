@@ -55,14 +55,14 @@ thresholds, not a setting: the tests reach the threaded paths with work
 above them), and :func:`use_threads` threads work of at least that size:
 
 * ``"sites"``: grid sites of a swap pass, a follow or a template scan;
-* ``"atoms"``: atoms of a query, a gather or a row partition;
+* ``"atoms"``: atoms of a query, a gather or a reordering of rows;
 * ``"pairs"``: pairs of a pair-potential sum or an RDF histogram.
 
 Whatever the thread count, results are the same bits: kernels split work
 into chunks fixed by the work (never by the thread count) or into
 independent lines, and reduce in chunk order; one thread runs the same
 chunks in chunk order.  The pair sum's chunks are a function of the list
-alone (:func:`ase_mlg.partition.row_chunks`), so forces, energy, stress,
+alone (:func:`ase_mlg.chunks.row_chunks`), so forces, energy, stress,
 per-atom energies and virials, and MD trajectories do not depend on
 ``NUMBA_NUM_THREADS`` or ``numba.set_num_threads``
 (tests/test_thread_determinism.py).

@@ -83,7 +83,7 @@ from .pairfunctions import (lennard_jones_shifted, lennard_jones_shifted_r2,
 from .pairsum import (PairError, SumList, SumOutputs, SumTables,
                       first_bad_pair, pair_kernel)
 from .parallel import dynamic_schedule
-from .partition import RowChunks, row_chunks
+from .chunks import RowChunks, row_chunks
 
 __all__ = [
     'PairPotential',
@@ -457,13 +457,13 @@ class PairPotential:
         virial : bool
             Return the total ``virial``; MD without a barostat needs none
             (skipping it saves a tenth of the time).
-        chunks : ase_mlg.partition.RowChunks, optional
+        chunks : ase_mlg.chunks.RowChunks, optional
             The chunks of rows the work is cut into, built for this list
             (``RowChunks(rowptr, nbr, nchunk)``), reused with its buffers
             from call to call: the calculator's
             :class:`~ase_mlg.verletlist.VerletList` keeps one per list
-            (:meth:`~ase_mlg.verletlist.VerletList.row_partition`).
-            Default: :func:`ase_mlg.partition.row_chunks` of the list (a
+            (:meth:`~ase_mlg.verletlist.VerletList.chunks`).
+            Default: :func:`ase_mlg.chunks.row_chunks` of the list (a
             function of the list alone, one chunk on short lists), built
             anew each call.  Same chunks, same bits, at any thread count:
             on one numba thread the serial kernel runs them in chunk order,
@@ -479,7 +479,7 @@ class PairPotential:
         if chunks is None:
             chunks = row_chunks(rowptr, nbr)
         elif not isinstance(chunks, RowChunks):
-            raise TypeError(f'chunks must be an ase_mlg.partition.RowChunks '
+            raise TypeError(f'chunks must be an ase_mlg.chunks.RowChunks '
                             f'of this list or None, got {chunks!r}')
         nchunk = chunks.nchunk
         kernel = pair_kernel(self.pair,

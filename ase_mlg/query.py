@@ -365,7 +365,7 @@ def _scan(b0, b1, blocks, reach, cutoff, fmt, room, out_c):
     row holds its pairs with (fast) squared distance ``<= split2`` first,
     then the others, each group in scan order: the force loop's cutoff
     branch is then predicted (this replaces a second pass over the list,
-    :meth:`PairList.partition`, 17% of a build).  Runs without the GIL,
+    :meth:`PairList.inner_first`, 17% of a build).  Runs without the GIL,
     one call per chunk of blocks on Python threads.
     """
     bsz, slot_atom, slot_rank = blocks.bsz, blocks.slot_atom, blocks.slot_rank

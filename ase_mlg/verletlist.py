@@ -6,7 +6,7 @@ atoms (:class:`~ase_mlg.tracker.GridTracker`), the half list itself
 (:class:`~ase_mlg.pairlist.PairList`, whose arrays the next build
 overwrites), the reference positions and cell of the validity test, the
 atoms' types in row order, and the unit of parallel work
-(:class:`~ase_mlg.partition.RowChunks`, kept with its buffers).  The block
+(:class:`~ase_mlg.chunks.RowChunks`, kept with its buffers).  The block
 index the exact query scans is built for each build and dropped after it
 (it is a tenth of the list's memory, and stale after the next grid update).
 Its :attr:`~VerletList.version` changes at every build: what its users
@@ -38,7 +38,7 @@ import numpy as np
 
 from .blocks import BlockIndex, block_for_radius
 from .pairsum import shift_vectors
-from .partition import row_chunks
+from .chunks import row_chunks
 from .query import CUT_RADII, half_list, pair_list
 from .template import template_pairs
 from .tracker import GridTracker
@@ -102,7 +102,7 @@ class VerletList:
         Positions of the last update in row order, each in the image the
         grid keeps it in (Å): the pair kernel's positions.  A bare
         :meth:`build` gathers them only for a template list with a skin
-        (its rows are partitioned at the cutoff); otherwise None until
+        (its rows put the pairs within the cutoff first); otherwise None until
         :meth:`update` or :meth:`allocate`.
     svec : float64[K, 3]
         Cartesian cell shift of every image code at the last update's cell, Å.
@@ -159,7 +159,7 @@ class VerletList:
         """Forget the list and the grid: the next update builds both."""
         self._tracker.reset()
         self.pairs = self.X = self.svec = self.types = self.width = None
-        self._partition = self._ref = self._spare = None
+        self._chunks = self._ref = self._spare = None
 
     @property
     def cutoff(self):
@@ -261,7 +261,7 @@ class VerletList:
         t0 = time.perf_counter()
         cell = np.asarray(cell, dtype=np.float64)
         old = self.pairs if self.pairs is not None else self._spare
-        self.pairs = self._partition = self._spare = None
+        self.pairs = self._chunks = self._spare = None
         self.X = self.svec = self._ref = None
         grid = self._tracker.follow(positions, cell, pbc)
         positions = grid.positions  # the same numbers, as float64 C arrays
@@ -294,7 +294,7 @@ class VerletList:
         self.pairs = pl
         if self.width is not None and self.rlist != self.cutoff:
             self._gather(positions, cell)
-            pl.partition(self.X, self.svec, self.cutoff)  # the scan orders its own
+            pl.inner_first(self.X, self.svec, self.cutoff)  # the scan orders its own
         if self._types_of is not None:
             self.types = np.ascontiguousarray(self._types_of(numbers)[pl.order])
         self._numbers = None if numbers is None else np.array(numbers, copy=True)
@@ -323,18 +323,18 @@ class VerletList:
         self.svec = shift_vectors(self.pairs.shifts, cell)
 
     # -- reading it -----------------------------------------------------------
-    def row_partition(self, nthreads=None):
+    def chunks(self, nthreads=None):
         """The unit of parallel work of a pass over the list: its rows cut
-        into :class:`~ase_mlg.partition.RowChunks`
-        (:func:`~ase_mlg.partition.row_chunks`: a function of the list
+        into :class:`~ase_mlg.chunks.RowChunks`
+        (:func:`~ase_mlg.chunks.row_chunks`: a function of the list
         alone), kept with their buffers until the next build.  The same
         object for any ``nthreads`` (accepted for compatibility): the
         chunks never follow the thread count, so neither do the results;
         numba's thread count at the pair sum decides how many threads
         share them."""
-        if self._partition is None:
-            self._partition = row_chunks(self.pairs.rowptr, self.pairs.nbr)
-        return self._partition
+        if self._chunks is None:
+            self._chunks = row_chunks(self.pairs.rowptr, self.pairs.nbr)
+        return self._chunks
 
     def arrays(self, half=False, quantities="ijdDS", orient=None):
         """The list as ``ase.neighborlist`` returns it, at the positions

@@ -106,7 +106,7 @@ def test_chunks_reproducible_and_agree_across_counts():
     """Every chunking of the calculator's list is ASE's answer (windowed
     buffers lose no pair), and the same chunks give the same bits."""
     import naive
-    from ase_mlg.partition import RowChunks
+    from ase_mlg.chunks import RowChunks
     atoms = argon(5)
     pot = LennardJones(**AR)
     pl, args = _calculator_list(atoms, pot)

@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from ase_mlg import potentials as P
 from ase_mlg.pairsum import (PairError, SumList, SumTables,
                              first_bad_pair, is_built_in, pair_kernel)
-from ase_mlg.partition import RowChunks
+from ase_mlg.chunks import RowChunks
 from ase_mlg.potentials import (LennardJones, Morse, PairPotential,
                                 lennard_jones_mixture)
 

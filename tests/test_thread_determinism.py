@@ -1,7 +1,7 @@
 """Results do not depend on the thread count (docs/design.md §8).
 
 The pair sum's chunks are a function of the list alone
-(:func:`ase_mlg.partition.row_chunks`), one thread runs the same chunks in
+(:func:`ase_mlg.chunks.row_chunks`), one thread runs the same chunks in
 chunk order that several threads share, and the list itself comes out the
 same for any thread count: so energy, forces, stress, per-atom energies and
 stresses, and MD trajectories are the same bits at 1, 2 and 4 numba
@@ -68,7 +68,7 @@ CHILD = SYSTEM + textwrap.dedent("""
     print(json.dumps({"bits": out, "threads": numba.get_num_threads(), "used": used,
                       "natoms": len(atoms), "npairs": len(pl), "md_path": md.path,
                       "builds": calc.verlet_list.stats["list_builds"],
-                      "nchunk": calc.verlet_list.row_partition().nchunk,
+                      "nchunk": calc.verlet_list.chunks().nchunk,
                       "thresholds": parallel.THRESHOLDS}))
 """)
 
@@ -114,7 +114,7 @@ def test_same_bits_after_set_num_threads():
     chunks of ``sum_pairs`` at ``numba.set_num_threads(1)`` and ``(2)``."""
     namespace = {}
     exec(SYSTEM, namespace)
-    from ase_mlg.partition import row_chunks
+    from ase_mlg.chunks import row_chunks
     old = numba.get_num_threads()
     runs = {}
     try:
@@ -138,5 +138,5 @@ def test_same_bits_after_set_num_threads():
         differ = [key for key in first if bits[key] != first[key]]
         assert not differ, differ
     for _, vl, chunks in runs[1] + runs[2]:
-        assert chunks.nchunk == vl.row_partition().nchunk > 1
-        assert vl.row_partition(1) is vl.row_partition(2) is vl.row_partition()
+        assert chunks.nchunk == vl.chunks().nchunk > 1
+        assert vl.chunks(1) is vl.chunks(2) is vl.chunks()

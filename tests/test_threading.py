@@ -88,7 +88,7 @@ def test_tbb_loads_and_a_threaded_kernel_runs_on_two_threads():
             atoms.get_forces()
             used = max(used, atoms.calc.stats["threads_used"])
         print("LAYER", c["threading_layer"], "PROBLEM", c["problem"],
-              "PROBE", c["probe_threads"], "USED", used, "CHUNKS", atoms.calc.verlet_list.row_partition().nchunk)
+              "PROBE", c["probe_threads"], "USED", used, "CHUNKS", atoms.calc.verlet_list.chunks().nchunk)
     """)
     res = python(code)
     assert res.returncode == 0, res.stderr[-3000:]
@@ -180,7 +180,7 @@ def test_windows_cover_every_pair_and_are_narrow(nchunk):
     import numpy as np
     from ase.build import bulk
     from ase_mlg import MLGCalculator
-    from ase_mlg.partition import RowChunks
+    from ase_mlg.chunks import RowChunks
     from ase_mlg.potentials import LennardJones
     atoms = bulk("Ar", "fcc", a=5.72, cubic=True).repeat(10)
     atoms.rattle(0.2, seed=3)

@@ -6,7 +6,7 @@
 * It rebuilds exactly when its test says so: a move past ``skin / 2``, a
   strain the skin cannot cover, other numbers, pbc or number of atoms;
   ``version`` counts the builds.
-* The row partition belongs to one list: a new build gives a new one.
+* The row chunks belong to one list: a new build gives a new one.
 """
 
 import numpy as np
@@ -138,21 +138,21 @@ def test_skin_zero_rebuilds_every_update_and_closed_keeps_the_cutoff():
 
 
 @pytest.mark.parametrize("natoms, box", [(200, 12.0), (5000, 35.0)])
-def test_row_partition_belongs_to_one_list(natoms, box):
+def test_row_chunks_belong_to_one_list(natoms, box):
     # the chunks are the list's (row_chunks: a function of the list alone),
     # never the thread count's: one object for any nthreads, kept until the
     # next build, which cuts its list into chunks of its own
-    from ase_mlg.partition import WINDOW_BUDGET, chunk_count
+    from ase_mlg.chunks import WINDOW_BUDGET, chunk_count
     pos, cell = _liquid(natoms, box, 6)
     vl = VerletList.allocate(pos, cell, [True] * 3, RC, skin=SKIN)
-    p1 = vl.row_partition()
-    assert vl.row_partition(1) is p1 and vl.row_partition(2) is p1
+    p1 = vl.chunks()
+    assert vl.chunks(1) is p1 and vl.chunks(2) is p1
     assert 1 <= p1.nchunk <= chunk_count(len(vl.pairs))
     assert (p1.nchunk == 1) == (natoms == 200)  # a short list: one chunk
     assert p1.entries <= max(WINDOW_BUDGET, 1) * natoms
     vl.build(pos, cell, [True] * 3)
-    p2 = vl.row_partition(2)
-    assert p2 is not p1 and vl.row_partition(1) is p2
+    p2 = vl.chunks(2)
+    assert p2 is not p1 and vl.chunks(1) is p2
     assert p2.nchunk == p1.nchunk  # the same list, the same chunks
     np.testing.assert_array_equal(p2.arrays.rows, p1.arrays.rows)
     rows = p2.arrays.rows

@@ -5,7 +5,7 @@ The pair sum's chunks used to follow numba's thread count (1 chunk on one
 thread, 4 a thread on more, halved while their windows took more than 3 N
 buffer entries but never below one a thread), so results changed with the
 thread count.  They are now a function of the list alone
-(:func:`ase_mlg.partition.row_chunks`), the same at every thread count.
+(:func:`ase_mlg.chunks.row_chunks`), the same at every thread count.
 This script measures what that costs.  For every size and thread count a
 fresh worker process (``NUMBA_NUM_THREADS``) builds the benchmark scene
 (validation/bench_common.py: LJ argon, rc 8.5 Å, skin 1 Å, fcc at 5.72 Å,
@@ -49,13 +49,13 @@ OLD_CHUNKS_PER_THREAD, OLD_PAIRS_PER_CHUNK, OLD_BUDGET = 4, 20_000, 3.0
 
 
 def old_chunks(rowptr, nbr, nthreads):
-    """The thread-following chunks of before (partition.row_chunks as it
+    """The thread-following chunks of before (chunking.row_chunks as it
     was): one chunk on one thread or a short list, else 4 a thread (at
     least 2 a thread, no shorter than 20,000 pairs where possible), halved
     while the windows take more than 3 N entries and a thread has more
     than one."""
     from ase_mlg.parallel import THRESHOLDS
-    from ase_mlg.partition import RowChunks
+    from ase_mlg.chunks import RowChunks
     m, n = int(rowptr[-1]), len(rowptr) - 1
     nth = nthreads if m >= THRESHOLDS["pairs"] else 1
     if nth <= 1:
@@ -73,15 +73,15 @@ def old_chunks(rowptr, nbr, nthreads):
 def fixed_chunks(rowptr, nbr, budget=None):
     """The package's chunks, with the window budget ``budget`` (x N)
     instead of the package's where given."""
-    from ase_mlg import partition
+    from ase_mlg import chunks as chunking
     if budget is None:
-        return partition.row_chunks(rowptr, nbr)
-    kept = partition.WINDOW_BUDGET
-    partition.WINDOW_BUDGET = budget
+        return chunking.row_chunks(rowptr, nbr)
+    kept = chunking.WINDOW_BUDGET
+    chunking.WINDOW_BUDGET = budget
     try:
-        return partition.row_chunks(rowptr, nbr)
+        return chunking.row_chunks(rowptr, nbr)
     finally:
-        partition.WINDOW_BUDGET = kept
+        chunking.WINDOW_BUDGET = kept
 
 
 def chunkings(pl, nthreads):
@@ -92,8 +92,8 @@ def chunkings(pl, nthreads):
 
 def use(vl, chunks):
     """Make the calculator's list hand out ``chunks`` (an instance
-    attribute shadowing :meth:`VerletList.row_partition`)."""
-    vl.row_partition = lambda nthreads=None: chunks
+    attribute shadowing :meth:`VerletList.chunks`)."""
+    vl.chunks = lambda nthreads=None: chunks
 
 
 def worker(natoms, calls, entries_only):

@@ -6,7 +6,7 @@ quiet machine, once per thread count:
     NUMBA_NUM_THREADS=2 python validation/half_vs_full.py
 
 Both sides read the same list, built as the calculator builds it (exact
-query at cutoff + 1 Å skin, rows partitioned at the cutoff); the half side is
+query at cutoff + 1 Å skin, each row's pairs within the cutoff first); the half side is
 :meth:`PairPotential.sum_pairs`, the full side the gather loop below.
 """
 
@@ -19,7 +19,7 @@ from numba import prange
 
 from ase_mlg import MLG
 from ase_mlg.blocks import BlockIndex
-from ase_mlg.partition import row_chunks
+from ase_mlg.chunks import row_chunks
 from ase_mlg.potentials import LennardJones
 from ase_mlg.query import half_list
 
@@ -86,7 +86,7 @@ def calculator_list(atoms, pot):
     cell = atoms.cell.array
     X = pl.positions(atoms.positions, cell)
     svec = np.ascontiguousarray(pl.shifts @ cell, dtype=np.float64)
-    pl.partition(X, svec, pot.cutoff)
+    pl.inner_first(X, svec, pot.cutoff)
     types = np.ascontiguousarray(pot.prepare(atoms.numbers)[0][pl.order])
     return pl, X, svec, types
 
