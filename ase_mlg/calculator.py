@@ -16,6 +16,7 @@ import numpy as np
 from ase.calculators.calculator import Calculator, all_changes
 
 from .geometry import as_positions
+from .ranks import RankEngine, is_distributed
 from .settings import changed_settings, check_settings, record, refuse_unknown, setting
 from .verletlist import VerletList
 
@@ -71,8 +72,7 @@ class MLGCalculator(Calculator):
         self._kernel_seconds = 0.0
 
     def _configure(self, settings):
-        """Put the checked settings in force with a new list (a refused
-        setting leaves the calculator as it was)."""
+        """Put the checked settings in force with a new list (or refuse them)."""
         settings, auto, width = check_settings(settings)
         # the list keeps d < rc + skin; the potential keeps d <= rc (closed)
         vl = VerletList(settings["potential"].cutoff, settings["skin"], closed=True,
@@ -80,13 +80,13 @@ class MLGCalculator(Calculator):
                         types=self._types_of,
                         grid_kwargs=settings["grid_kwargs"])  # NPT: the grid follows the cell
         self._settings, self.auto, self._width, self.verlet_list = settings, auto, width, vl
+        self._ranks = None  # a distributed system's engine (ase_mlg.ranks), made when needed
 
     def set(self, **kwargs):
-        """Change settings (:data:`~ase_mlg.settings.SETTINGS`) or the
-        potential's arguments (``sigma=``, ``epsilon=``, ...: a new potential
-        of the same kind); returns the changed ones.  When anything changed
-        the results and the list are dropped (ASE's LJ keeps its results
-        until the atoms change); a refused value changes nothing."""
+        """Change settings (:data:`~ase_mlg.settings.SETTINGS`) or the potential's
+        arguments (``sigma=``: a new potential of its kind); returns the changed
+        ones, and drops the results and the list (ASE's LJ keeps its results
+        until the atoms change).  A refused value changes nothing."""
         if not kwargs:
             return {}
         changed, settings = changed_settings(self._settings, kwargs)
@@ -105,52 +105,66 @@ class MLGCalculator(Calculator):
                         doc="The template width in use (None: exact); assigning None, W, "
                             "'auto' or an AutoTemplate is ``calc.set(template=...)``.")
 
-    def _types_of(self, numbers):  # the list's types, from the potential in force
-        return self.potential.prepare(numbers)[0]
+    _types_of = lambda self, z: self.potential.prepare(z)[0]  # noqa: E731 (the potential in force)
 
     def _choose(self, grid, numbers):
         self._width = self.auto.choose(grid, self.potential, numbers)
         return self._width
 
-    grid = property(lambda self: self.verlet_list.grid,
-                    doc="The MLG the calculator keeps (None before the first call or after reset).")
+    grid = property(lambda self: self.verlet_list.grid, doc="The MLG kept (None before a call).")
 
-    @property
-    def stats(self):
-        """``calls``, ``pairs`` (summed), ``threads_used`` (last call), the list's stats."""
-        return {**self._counts, **self.verlet_list.stats}
+    stats = property(lambda self: {**self._counts, **self.verlet_list.stats},
+                     doc="``calls``, ``pairs`` (summed), ``threads_used`` (last call), the list's.")
 
-    @property
-    def timings(self):
-        """Seconds of the list's phases (``check``, ``list_build``, ``grid``),
-        of the pair sum (``kernel``), and the number of ``calls``."""
-        return {**self.verlet_list.timings, "kernel": self._kernel_seconds,
-                "calls": float(self._counts["calls"])}
+    timings = property(lambda self: {**self.verlet_list.timings, "kernel": self._kernel_seconds,
+                                     "calls": float(self._counts["calls"])},
+                       doc="Seconds of the list's phases (``check``, ``list_build``, ``grid``), "
+                           "of the pair sum (``kernel``), and the number of ``calls``.")
 
     def reset(self):
         Calculator.reset(self)
         self.verlet_list.reset()
+        self._ranks = None
 
     def check_state(self, atoms, tol=1e-15):
-        """What changed since the last call (ASE's contract), by exact
-        comparison of what a pair potential reads: a fifth of the cost of
-        ASE's ``compare_atoms`` (a third of an MD step at 10^4 atoms), and
-        stricter than its tolerance, so a call is at worst recomputed."""
+        """What changed since the last call (ASE's contract), by exact comparison
+        of what a pair potential reads: a fifth of ASE's ``compare_atoms`` (a third
+        of an MD step at 10^4 atoms) and stricter, so at worst a call is repeated."""
         old = self.atoms
-        if old is None or len(old) != len(atoms):
-            return list(all_changes)
-        return [name for name, a, b in (
-            ("positions", old.positions, atoms.positions),
-            ("numbers", old.numbers, atoms.numbers),
-            ("cell", old.cell.array, atoms.cell.array),
-            ("pbc", old.pbc, atoms.pbc)) if not np.array_equal(a, b)]
+        changes = list(all_changes) if old is None or len(old) != len(atoms) else [
+            name for name, a, b in (("positions", old.positions, atoms.positions),
+                                    ("numbers", old.numbers, atoms.numbers),
+                                    ("cell", old.cell.array, atoms.cell.array),
+                                    ("pbc", old.pbc, atoms.pbc)) if not np.array_equal(a, b)]
+        # ranks decide together: one rank computing alone would wait forever
+        return RankEngine.union(atoms.comm, changes) if is_distributed(atoms) else changes
 
     def calculate(self, atoms=None, properties=("energy",),
                   system_changes=all_changes):
-        # the list decides from the positions whether it holds (ASE's
-        # get_properties passes all_changes), so the caller's check_state is
-        # not repeated.  The stored atoms are updated in place when only
-        # positions or cell moved, not copied whole: 0.5 ms at 10^5 atoms
+        # the virial costs a tenth of the loop: only once stress was asked for
+        self._stress_wanted |= "stress" in properties or "stresses" in properties
+        want = dict(energies="energies" in properties, virials="stresses" in properties,
+                    virial=self._stress_wanted)
+        if is_distributed(atoms):
+            self._ranks = self._ranks or RankEngine(self.potential, self.skin, self.grid_kwargs,
+                                                    "auto" if self.auto else self._width)
+            res = self._ranks.calculate(atoms, **want)
+            self.atoms = atoms.copy()
+        else:
+            res = self._calculate_here(atoms, want)
+        self.results.update(energy=res["energy"], free_energy=res["energy"],
+                            forces=res["forces"])
+        if "energies" in res:
+            self.results["energies"] = res["energies"]
+        if self.atoms.cell.rank == 3 and "virial" in res:
+            volume = abs(np.linalg.det(self.atoms.cell.array))
+            self.results["stress"] = -res["virial"] / volume
+            if "virials_voigt" in res:
+                self.results["stresses"] = -res["virials_voigt"] / volume
+
+    def _calculate_here(self, atoms, want):
+        # the list decides whether it holds (ASE passes all_changes): no second
+        # check_state.  Stored atoms updated in place, not copied: 0.5 ms at 10^5
         old = self.atoms
         if atoms is not None and atoms is not old:
             if (old is None or len(old) != len(atoms)
@@ -170,29 +184,15 @@ class MLGCalculator(Calculator):
         vl.update(positions, cell, atoms.pbc, atoms.numbers)
         t0 = time.perf_counter()
         pl, chunks = vl.pairs, vl.chunks()
-        # the virial costs a tenth of the loop: only for callers that ask
-        # for stress (once asked, always: barostats ask after the forces)
-        self._stress_wanted |= "stress" in properties or "stresses" in properties
-        res = self.potential.sum_pairs(
-            vl.X, vl.types, pl.rowptr, pl.nbr, pl.code, vl.svec, pl.order,
-            energies="energies" in properties, virials="stresses" in properties,
-            virial=self._stress_wanted, chunks=chunks)
+        res = self.potential.sum_pairs(vl.X, vl.types, pl.rowptr, pl.nbr, pl.code, vl.svec,
+                                       pl.order, chunks=chunks, **want)
         self._kernel_seconds += time.perf_counter() - t0
         c = self._counts
         c.update(calls=c["calls"] + 1, pairs=c["pairs"] + len(pl), threads_used=chunks.threads_used())
-        self.results.update(energy=res["energy"], free_energy=res["energy"],
-                            forces=res["forces"])
-        if "energies" in res:
-            self.results["energies"] = res["energies"]
-        if atoms.cell.rank == 3 and "virial" in res:
-            volume = abs(np.linalg.det(cell))
-            self.results["stress"] = -res["virial"] / volume
-            if "virials_voigt" in res:
-                self.results["stresses"] = -res["virials_voigt"] / volume
+        return res
 
     def todict(self):
-        """The settings in force, JSON-serialisable: what .traj, .db and
-        .json files record (ASE calls this)."""
+        """The settings in force, JSON-serialisable (what .traj, .db, .json record)."""
         return record(self._settings, self.auto is not None, self._width)
 
     def __repr__(self):

@@ -152,7 +152,7 @@ class VerletList:
         """A list built for ``positions`` (Å) in ``cell`` with ``pbc``,
         ready for :meth:`update`; ``options`` are the constructor's."""
         vl = cls(cutoff, **options)
-        vl._build_kept(positions, np.asarray(cell, dtype=np.float64), pbc, numbers)
+        vl.rebuild(positions, np.asarray(cell, dtype=np.float64), pbc, numbers)
         return vl
 
     def reset(self):
@@ -207,6 +207,18 @@ class VerletList:
         and strain together.  (LAMMPS's ``check_distance`` bounds the strain
         by the box corners' displacement instead.)
         """
+        X = self.kept(positions, cell, pbc, numbers)
+        if X is None:
+            self.rebuild(positions, cell, pbc, numbers)
+            return True
+        self.keep(X, cell)
+        return False
+
+    def kept(self, positions, cell, pbc, numbers=None):
+        """The list's positions in row order at ``positions`` if the list
+        still holds there (the test of :meth:`update`), else None; the list
+        is not changed.  With :meth:`keep`, :meth:`update` in two halves:
+        the ranks of a distributed run decide together between them."""
         t0 = time.perf_counter()
         cell = np.asarray(cell, dtype=np.float64)
         X = None
@@ -215,12 +227,13 @@ class VerletList:
                 and (numbers is None or np.array_equal(numbers, self._numbers))):
             X = self._kept_positions(positions, cell) if self._ref is not None else None
         self.timings["check"] += time.perf_counter() - t0
-        if X is None:
-            self._build_kept(positions, cell, pbc, numbers)
-            return True
+        return X
+
+    def keep(self, X, cell):
+        """Keep the list at the row-order positions ``X`` that :meth:`kept`
+        returned, in ``cell``."""
         self.X = X
-        self.svec = shift_vectors(self.pairs.shifts, cell)
-        return False
+        self.svec = shift_vectors(self.pairs.shifts, np.asarray(cell, dtype=np.float64))
 
     def _kept_positions(self, positions, cell):
         """Positions in row order if the list still holds every pair within
@@ -305,8 +318,10 @@ class VerletList:
         self.timings["list_build"] += time.perf_counter() - t0
         return pl
 
-    def _build_kept(self, positions, cell, pbc, numbers):
-        """:meth:`build`, and the kernel's positions for :meth:`update`."""
+    def rebuild(self, positions, cell, pbc, numbers=None):
+        """:meth:`build`, and the kernel's positions (:attr:`X`,
+        :attr:`svec`): what :meth:`update` does when the list does not hold."""
+        cell = np.asarray(cell, dtype=np.float64)
         self.build(positions, cell, pbc, numbers)
         t0 = time.perf_counter()
         if self.X is None:

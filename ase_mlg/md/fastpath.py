@@ -24,12 +24,15 @@ Otherwise the step is ASE's own, unchanged (``path`` says which and why):
 any other constraint is applied exactly as ASE applies it, at ASE's speed.
 """
 
+import os
+
 import numpy as np
 from ase import Atoms
 from ase.constraints import FixAtoms
 from ase.data import atomic_masses
 
 from ..calculator import MLGCalculator
+from ..ranks import Trajectory, is_distributed
 
 __all__ = ["compiled_reason", "masses_now", "fixed_mask", "forces_now",
            "as_float_array", "is_mlg"]
@@ -127,6 +130,15 @@ def as_float_array(a, n, name="forces"):
     if a.shape != (n, 3):
         raise ValueError(f"{name}: expected shape ({n}, 3), got {a.shape}")
     return a
+
+
+def rank_trajectory(atoms, trajectory, append):
+    """The dynamics' ``trajectory`` argument for ``atoms``: a file name
+    becomes a :class:`ase_mlg.ranks.Trajectory` on a distributed system
+    (written once, by rank 0, in the original order); anything else as is."""
+    if is_distributed(atoms) and isinstance(trajectory, (str, os.PathLike)):
+        return Trajectory(trajectory, "a" if append else "w", atoms)
+    return trajectory
 
 
 def is_mlg(atoms):

@@ -20,7 +20,7 @@ from numba import njit
 
 __all__ = ["verlet_drift", "verlet_drift_rattle", "verlet_kick",
            "langevin_noise", "langevin_drift", "langevin_kick", "no_fixed",
-           "LangevinCoefficients", "NoiseCorrection"]
+           "indexed_normals", "LangevinCoefficients", "NoiseCorrection"]
 
 #: The scalar coefficients of a Langevin step: ``c1`` (ASE time) and ``c2``
 #: (dimensionless) of ``Langevin.updatevars``, and the time step ``dt``
@@ -240,3 +240,48 @@ def langevin_kick(v, p, f, m, rnd_vel, c1, c2, fixed):
 def no_fixed(n):
     """The all-False mask of ``n`` atoms (no FixAtoms)."""
     return np.zeros(n, dtype=np.bool_)
+
+
+@njit(cache=True, inline="always")
+def _mix64(z):
+    # splitmix64's finaliser (Steele, Lea and Flood 2014): a bijection of
+    # 64-bit words whose outputs pass BigCrush for consecutive inputs
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@njit(cache=True)
+def indexed_normals(seed, step, indices, xi, eta):
+    """Standard normal draws keyed by (seed, step, atom index, component):
+    the noise of a distributed Langevin run, the same for an atom whichever
+    rank owns it (so the trajectory does not depend on the rank count).
+
+    Each (atom, step) gets the 64-bit key ``mix(seed + mix(step) + index)``;
+    the six draws of ``xi`` then ``eta`` come from the counters key + 1..6
+    through splitmix64 and the Box-Muller transform.
+
+    Parameters
+    ----------
+    seed, step : int
+        The run's seed (from its rng) and the step number.
+    indices : (n,) int64
+        Original indices of the atoms.
+    xi, eta : (n, 3) float64
+        Outputs.
+    """
+    gamma = np.uint64(0x9E3779B97F4A7C15)
+    base = np.uint64(seed) + _mix64(np.uint64(step) * gamma)
+    scale = 1.0 / 9007199254740992.0  # 2^-53
+    for a in range(indices.shape[0]):
+        key = _mix64(base + np.uint64(indices[a]) * gamma)
+        for c in range(3):
+            for which in range(2):
+                k = np.uint64(2 * c + which)
+                u1 = (float(_mix64(key + (k + np.uint64(1)) * gamma) >> np.uint64(11)) + 1.0) * scale
+                u2 = float(_mix64(key + (k + np.uint64(7)) * gamma) >> np.uint64(11)) * scale
+                g = np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+                if which == 0:
+                    xi[a, c] = g
+                else:
+                    eta[a, c] = g

@@ -3,11 +3,13 @@
 import numpy as np
 from ase.md.langevin import Langevin as _ASELangevin
 
-from .kernels import (LangevinCoefficients, NoiseCorrection, langevin_drift, langevin_kick,
-                      langevin_noise, no_fixed)
+from ..ranks import is_distributed
+from ..ranks.comm import ordered_sum
+from .kernels import (LangevinCoefficients, NoiseCorrection, indexed_normals, langevin_drift,
+                      langevin_kick, langevin_noise, no_fixed)
 from .checks import check_dynamics_args, check_langevin_args
 from .fastpath import (CompiledRefresh, as_float_array, compiled_reason, fixed_mask, forces_now,
-                       masses_now)
+                       masses_now, rank_trajectory)
 
 __all__ = ["Langevin"]
 
@@ -58,6 +60,12 @@ class Langevin(CompiledRefresh, _ASELangevin):
 
     Notes
     -----
+    On a distributed system (:func:`ase_mlg.distribute`) the draws are keyed
+    by each atom's original index and the step
+    (:func:`~ase_mlg.md.kernels.indexed_normals`, seeded once from ``rng``),
+    so the trajectory is the same at any rank count; ``fixcm`` sums over
+    all ranks.
+
     FixAtoms runs compiled as ASE applies it; other constraints (e.g. ones
     that redistribute the noise), filters, and per-atom temperature or
     friction arrays run ASE's own step, unchanged; :attr:`path` says which
@@ -68,8 +76,12 @@ class Langevin(CompiledRefresh, _ASELangevin):
                  *, temperature_K=None, rng=None, **kwargs):
         check_dynamics_args(atoms, timestep, kwargs.get("loginterval", 1))
         check_langevin_args(temperature, temperature_K, friction, fixcm, rng)
+        if "trajectory" in kwargs:
+            kwargs["trajectory"] = rank_trajectory(atoms, kwargs["trajectory"],
+                                                   kwargs.get("append_trajectory", False))
         self.path = None
         self._fresh = False
+        self._seed, self._draws = None, 0
         super().__init__(atoms, timestep, temperature=temperature, friction=friction,
                          fixcm=fixcm, temperature_K=temperature_K, rng=rng, **kwargs)
 
@@ -94,12 +106,36 @@ class Langevin(CompiledRefresh, _ASELangevin):
             self._rnd_vel = np.empty((n, 3))
         return self._v, self._rnd_pos, self._rnd_vel
 
+    def _draw(self, atoms, n):
+        """xi and eta, (n, 3) standard normals: ASE's draws, in ASE's order and
+        shapes (the same rng state gives the same noise; FixAtoms has no
+        redistribute_forces_md to apply), or on a distributed system the
+        draws keyed by original index."""
+        if is_distributed(atoms):
+            if self._seed is None:
+                self._seed = atoms.comm.bcast(int(self.rng.random() * 2.0 ** 53), root=0)
+            xi, eta = np.empty((n, 3)), np.empty((n, 3))
+            indexed_normals(self._seed, self._draws, atoms.indices, xi, eta)
+            self._draws += 1
+            return xi, eta
+        xi = self.rng.standard_normal(size=(n, 3))
+        eta = self.rng.standard_normal(size=(n, 3))
+        self.comm.broadcast(xi, 0)
+        self.comm.broadcast(eta, 0)
+        return (as_float_array(xi, n, "rng.standard_normal"),
+                as_float_array(eta, n, "rng.standard_normal"))
+
     def step(self, forces=None):
         """One Langevin step; returns the forces at the new positions (eV/Å,
         read-only on the compiled path)."""
         atoms = self.atoms
         n = len(atoms)
         reason = compiled_reason(atoms)
+        distributed = is_distributed(atoms)
+        if distributed and reason is None:
+            # the owned atoms changed at the last rebuild: their own coefficients
+            self.masses = atoms.get_masses().reshape(-1, 1)
+            self.updatevars()
         coef = None if reason is not None else self._coefficients(n)
         self._fresh = False
         if coef is None:
@@ -109,19 +145,17 @@ class Langevin(CompiledRefresh, _ASELangevin):
         c1, c2, c3, c4, c5, m = coef
         f = forces_now(atoms) if forces is None else as_float_array(forces, n)
         m_now = masses_now(atoms)
-        # ASE's draws, in ASE's order and shapes: the same rng state gives
-        # the same noise (FixAtoms has no redistribute_forces_md to apply)
-        xi = self.rng.standard_normal(size=(n, 3))
-        eta = self.rng.standard_normal(size=(n, 3))
-        self.comm.broadcast(xi, 0)
-        self.comm.broadcast(eta, 0)
-        xi = as_float_array(xi, n, "rng.standard_normal")
-        eta = as_float_array(eta, n, "rng.standard_normal")
+        xi, eta = self._draw(atoms, n)
         v, rnd_pos, rnd_vel = self._buffers(n)
         langevin_noise(xi, eta, c3, c4, c5, rnd_pos, rnd_vel)
-        if self.fix_com:
+        if self.fix_com and distributed:
+            nall = atoms.get_global_number_of_atoms()
+            factor = float(np.sqrt(nall / (nall - 1.0)))
+            spos = ordered_sum(atoms.comm, rnd_pos.sum(axis=0))
+            svel = ordered_sum(atoms.comm, (rnd_vel * self.masses).sum(axis=0))
+        elif self.fix_com:
             factor = float(np.sqrt(n / (n - 1.0)))
-            # numpy's sums, as ASE takes them, so that the rounding matches
+            # numpy's sums, as ASE takes them, so that the rounding is ASE's
             spos = rnd_pos.sum(axis=0)
             svel = (rnd_vel * self.masses).sum(axis=0)
         else:
@@ -135,7 +169,16 @@ class Langevin(CompiledRefresh, _ASELangevin):
                        LangevinCoefficients(c1, c2, dt), fixed)
         # ASE stores the velocity and the noise as attributes (Asap reads them)
         self.v, self.rnd_pos, self.rnd_vel = v, rnd_pos, rnd_vel
-        f = forces_now(atoms)
+        if distributed:
+            # atoms may migrate in the force call: the half step's state goes with them
+            atoms.arrays["mlg_langevin_v"], atoms.arrays["mlg_langevin_rnd_vel"] = v, rnd_vel
+            f = forces_now(atoms)
+            v = self.v = atoms.arrays.pop("mlg_langevin_v")
+            rnd_vel = self.rnd_vel = atoms.arrays.pop("mlg_langevin_rnd_vel")
+            p, m = atoms.arrays["momenta"], np.ascontiguousarray(atoms.get_masses())
+            fixed = no_fixed(len(p))
+        else:
+            f = forces_now(atoms)
         langevin_kick(v, p, f, m, rnd_vel, c1, c2, fixed)
         self._fresh = True
         ro = f.view()

@@ -5,7 +5,7 @@ from ase.md.verlet import VelocityVerlet as _ASEVelocityVerlet
 from .kernels import no_fixed, verlet_drift, verlet_drift_rattle, verlet_kick
 from .checks import check_dynamics_args
 from .fastpath import (CompiledRefresh, as_float_array, compiled_reason, fixed_mask, forces_now,
-                       masses_now)
+                       masses_now, rank_trajectory)
 
 __all__ = ["VelocityVerlet"]
 
@@ -56,6 +56,7 @@ class VelocityVerlet(CompiledRefresh, _ASEVelocityVerlet):
     def __init__(self, atoms, timestep, trajectory=None, logfile=None,
                  loginterval=1, **kwargs):
         check_dynamics_args(atoms, timestep, loginterval)
+        trajectory = rank_trajectory(atoms, trajectory, kwargs.get("append_trajectory", False))
         self.path = None
         self._fresh = False
         super().__init__(atoms, timestep, trajectory=trajectory, logfile=logfile,
@@ -85,9 +86,11 @@ class VelocityVerlet(CompiledRefresh, _ASEVelocityVerlet):
             verlet_drift(x, p, f, m, dt)
         # the calculator sees the new positions through check_state (the
         # arrays were written in place, as ASE's set_array does); momenta
-        # are stored before the force call, as ASE does for Asap
+        # are stored before the force call, as ASE does for Asap.  Read
+        # them again after it: a distributed system migrates atoms there
         f = forces_now(atoms)
-        verlet_kick(p, f, dt, fixed)
+        p = atoms.arrays["momenta"]
+        verlet_kick(p, f, dt, fixed if len(fixed) == len(p) else no_fixed(len(p)))
         self._fresh = True
         return _readonly(f)
 

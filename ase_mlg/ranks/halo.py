@@ -1,0 +1,206 @@
+"""Ghost atoms and migration between the ranks of a :class:`~ase_mlg.ranks.partition.Partition`.
+
+Ghosts (:class:`Halo`)
+    The ghosts of rank r are every atom (of any rank, r included) with a
+    periodic image within ``reach = cutoff + skin`` of r's region: a
+    fractional box, widened on each cut axis by ``reach / height`` (an atom
+    within a distance d of a point differs from it by at most ``d /
+    height_a`` in fractional coordinate a).  Every pair within ``reach`` of
+    an owned atom at a rebuild is then in the rank's local system, owned
+    atoms plus ghosts, and stays there while the list holds (the list's
+    own validity bound, reduced over ranks: docs/design.md §6).  The lists
+    of who sends what are made at each rebuild; between rebuilds only the
+    positions travel, point to point to the neighbouring ranks, with
+    non-blocking sends and receives.  A ghost is an atom's position plus an
+    integer image of the cell, so it follows the cell under NPT.
+Migration (:func:`migrate`)
+    At a rebuild every atom goes to the rank whose region holds it, with
+    every per-atom array of its ``Atoms`` (positions, momenta, numbers,
+    masses, its original index, an integrator's per-atom state); the global
+    count and the set of original indices are then checked
+    (:func:`check_atoms`), and a violation is an error naming the atoms.
+"""
+
+import numpy as np
+
+__all__ = ["Halo", "migrate", "check_atoms"]
+
+
+def _mpi():
+    from mpi4py import MPI
+    return MPI
+
+
+class Halo:
+    """The ghost lists of one rebuild on this rank.
+
+    Parameters
+    ----------
+    comm : mpi4py communicator or SerialComm
+    partition : Partition
+    positions : (n, 3) float64
+        The owned atoms (Å), after migration.
+    numbers : (n,) int
+        Their atomic numbers.
+
+    Attributes
+    ----------
+    own_images : (n, 3) int64
+        The cell image that brings each owned atom into its region (its
+        local position is ``x + own_images @ cell``).
+    ghost_numbers : (g,) int64
+        The ghosts' atomic numbers, in the order of :meth:`exchange`.
+    pbc : (3,) bool
+        The local system's periodic axes: the system's, less the cut ones
+        (their images are ghosts).
+    """
+
+    def __init__(self, comm, partition, positions, numbers):
+        self.comm = comm
+        box = partition.box
+        frac = box.fractional(positions)
+        wrap = np.where(box.pbc, np.floor(frac), 0.0)
+        self.own_images = -wrap.astype(np.int64)
+        w = frac - wrap
+        w = np.where(box.pbc & (w >= 1.0), 0.0, w)
+        h = partition.reach / box.heights
+        self.sends = {}  # rank -> (owned index, integer image) of the ghosts sent there
+        for r in range(comm.size):
+            low, high, cut = partition.box_of(r)
+            idx, img = _in_box(w, low - h, high + h, cut, box.pbc, self_rank=(r == comm.rank))
+            if len(idx):
+                self.sends[r] = (idx, img + self.own_images[idx])
+        self.pbc = box.pbc & ~(np.array(partition.dims) > 1)
+        counts = comm.alltoall([len(self.sends.get(r, ((),))[0]) for r in range(comm.size)])
+        self.recv_counts = {r: c for r, c in enumerate(counts) if c}
+        self.nghost = int(sum(self.recv_counts.values()))
+        self.ghost_numbers = self._trade(lambda idx, img: np.asarray(numbers, np.int64)[idx],
+                                         np.int64, ())
+
+    def _trade(self, pack, dtype, tail):
+        """Send ``pack(idx, img)`` of every send list and receive the
+        ghosts' values, in rank order."""
+        out = np.empty((self.nghost,) + tail, dtype)
+        me = self.comm.rank
+        spans, at = {}, 0
+        for r in sorted(self.recv_counts):
+            spans[r] = slice(at, at + self.recv_counts[r])
+            at += self.recv_counts[r]
+        requests, keep = [], []
+        if self.comm.size > 1:
+            MPI = _mpi()
+            for r, s in spans.items():
+                if r != me:
+                    requests.append(self.comm.Irecv(out[s], source=r, tag=7))
+            for r, (idx, img) in self.sends.items():
+                if r != me:
+                    buf = np.ascontiguousarray(pack(idx, img), dtype)
+                    keep.append(buf)
+                    requests.append(self.comm.Isend(buf, dest=r, tag=7))
+        if me in self.sends:
+            out[spans[me]] = pack(*self.sends[me])
+        if requests:
+            MPI.Request.Waitall(requests)
+        return out
+
+    def exchange(self, positions, cell):
+        """The ghosts' positions (g, 3) now (Å): their owners' positions
+        plus their images of ``cell``."""
+        cell = np.asarray(cell, np.float64)
+        return self._trade(lambda idx, img: positions[idx] + img @ cell, np.float64, (3,))
+
+
+def _in_box(w, low, high, cut, pbc, self_rank):
+    """Owned atoms (index) and images (integers) whose wrapped fractional
+    coordinates ``w + image`` fall in ``[low, high]`` on every cut axis
+    (image 0 on uncut axes); on the own rank, image 0 is the atom itself
+    and not a ghost."""
+    n = len(w)
+    ranges = []
+    for a in range(3):
+        if not cut[a]:
+            ranges.append((np.zeros(n, np.int64), np.zeros(n, np.int64)))
+        elif pbc[a]:
+            ranges.append((np.ceil(low[a] - w[:, a]).astype(np.int64),
+                           np.floor(high[a] - w[:, a]).astype(np.int64)))
+        else:
+            inside = (w[:, a] >= low[a]) & (w[:, a] <= high[a])
+            ranges.append((np.where(inside, 0, 1), np.zeros(n, np.int64)))
+    idx_parts, img_parts = [], []
+    spans = [int((hi - lo).max(initial=-1)) for lo, hi in ranges]
+    if min(spans) < 0:
+        return np.zeros(0, np.int64), np.zeros((0, 3), np.int64)
+    for d0 in range(spans[0] + 1):
+        for d1 in range(spans[1] + 1):
+            for d2 in range(spans[2] + 1):
+                img = np.stack([ranges[0][0] + d0, ranges[1][0] + d1, ranges[2][0] + d2], axis=1)
+                ok = np.ones(n, bool)
+                for a in range(3):
+                    ok &= img[:, a] <= ranges[a][1]
+                if self_rank:
+                    ok &= img.any(axis=1)
+                sel = np.flatnonzero(ok)
+                idx_parts.append(sel)
+                img_parts.append(img[sel])
+    idx = np.concatenate(idx_parts)
+    img = np.concatenate(img_parts)
+    order = np.lexsort((img[:, 2], img[:, 1], img[:, 0], idx))  # a fixed order
+    return idx[order], img[order]
+
+
+def migrate(comm, arrays, dest):
+    """Send every atom to the rank ``dest`` names, with all its arrays.
+
+    Parameters
+    ----------
+    arrays : dict of str -> (n, ...) array
+    dest : (n,) int
+        The new owner of each atom.
+
+    Returns
+    -------
+    dict of str -> array, and the number of atoms that left this rank:
+    the atoms kept, then those received, in rank order.
+    """
+    me = comm.rank
+    keep = dest == me
+    outgoing = []
+    for r in range(comm.size):
+        sel = dest == r
+        outgoing.append(None if r == me or not sel.any()
+                        else {k: np.ascontiguousarray(a[sel]) for k, a in arrays.items()})
+    incoming = comm.alltoall(outgoing)
+    new = {}
+    for k, a in arrays.items():
+        parts = [a[keep]] + [inc[k] for inc in incoming if inc is not None]
+        new[k] = np.ascontiguousarray(np.concatenate(parts))
+    return new, int((~keep).sum())
+
+
+def check_atoms(comm, indices, natoms):
+    """Every original index ``0 .. natoms - 1`` on exactly one rank.
+
+    Raises
+    ------
+    RuntimeError
+        Naming up to ten atoms lost or held twice, on every rank.
+    """
+    idx = np.asarray(indices, np.int64)
+    total = sum(comm.allgather(len(idx)))
+    with np.errstate(over="ignore"):
+        u = idx.astype(np.uint64)
+        s1, s2 = int(u.sum(dtype=np.uint64)), int((u * u).sum(dtype=np.uint64))
+    sums = comm.allgather((s1, s2))
+    n = int(natoms)
+    want1 = (n * (n - 1) // 2) % 2 ** 64
+    want2 = ((n - 1) * n * (2 * n - 1) // 6) % 2 ** 64
+    got1 = sum(a for a, _ in sums) % 2 ** 64
+    got2 = sum(b for _, b in sums) % 2 ** 64
+    if total == n and got1 == want1 and got2 == want2:
+        return
+    every = np.concatenate(comm.allgather(idx))
+    counts = np.bincount(every[(every >= 0) & (every < n)], minlength=n)
+    lost = np.flatnonzero(counts == 0)[:10].tolist()
+    twice = np.flatnonzero(counts > 1)[:10].tolist()
+    raise RuntimeError(f"atoms lost in migration: {lost}; held by two ranks: {twice} "
+                       f"({total} atoms on the ranks, {n} in the system)")
