@@ -30,8 +30,9 @@ LangevinCoefficients = namedtuple("LangevinCoefficients", "c1 c2 dt")
 #: ASE's ``fixcm`` correction of the Langevin noise: ``fixcm`` (bool),
 #: ``spos`` = ``rnd_pos.sum(axis=0)`` and ``svel`` = ``(rnd_vel *
 #: masses).sum(axis=0)`` ((3,) float64, numpy's sums so that the rounding is
-#: ASE's) and ``factor`` = ``sqrt(N / (N - 1))``; not read without ``fixcm``.
-NoiseCorrection = namedtuple("NoiseCorrection", "fixcm spos svel factor")
+#: ASE's), ``factor`` = ``sqrt(N / (N - 1))`` and ``natoms`` = N (float; the
+#: whole system's on a distributed one); not read without ``fixcm``.
+NoiseCorrection = namedtuple("NoiseCorrection", "fixcm spos svel factor natoms")
 
 
 @njit(cache=True)
@@ -184,7 +185,7 @@ def langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel, com, coef, fixed):
     c2 = coef.c2
     dt = coef.dt
     n = x.shape[0]
-    fn = float(n)
+    fn = com.natoms
     for a in range(n):
         mn = m_now[a]
         ma = m[a]

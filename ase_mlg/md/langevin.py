@@ -148,8 +148,8 @@ class Langevin(CompiledRefresh, _ASELangevin):
         xi, eta = self._draw(atoms, n)
         v, rnd_pos, rnd_vel = self._buffers(n)
         langevin_noise(xi, eta, c3, c4, c5, rnd_pos, rnd_vel)
+        nall = atoms.get_global_number_of_atoms() if distributed else n
         if self.fix_com and distributed:
-            nall = atoms.get_global_number_of_atoms()
             factor = float(np.sqrt(nall / (nall - 1.0)))
             spos = ordered_sum(atoms.comm, rnd_pos.sum(axis=0))
             svel = ordered_sum(atoms.comm, (rnd_vel * self.masses).sum(axis=0))
@@ -165,7 +165,7 @@ class Langevin(CompiledRefresh, _ASELangevin):
         p = atoms.arrays["momenta"]
         dt = float(self.dt)
         langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel,
-                       NoiseCorrection(bool(self.fix_com), spos, svel, factor),
+                       NoiseCorrection(bool(self.fix_com), spos, svel, factor, float(nall)),
                        LangevinCoefficients(c1, c2, dt), fixed)
         # ASE stores the velocity and the noise as attributes (Asap reads them)
         self.v, self.rnd_pos, self.rnd_vel = v, rnd_pos, rnd_vel
