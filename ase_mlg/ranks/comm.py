@@ -18,6 +18,8 @@ installs (mpi4py's ``python -m mpi4py`` does the same).
 
 import os
 import sys
+import time
+import traceback
 
 import numpy as np
 
@@ -158,11 +160,14 @@ def abort_on_exception(comm):
     global _hooked
     if _hooked or comm.size == 1:
         return
-    previous = sys.excepthook
-
     def hook(kind, value, tb):
-        previous(kind, value, tb)
+        # one write, and a moment for the launcher to forward it before
+        # Abort takes every process down
+        text = "".join(traceback.format_exception(kind, value, tb))
+        sys.stderr.write(f"ase-mlg: rank {comm.rank} of {comm.size} failed; ending every rank\n"
+                         + text)
         sys.stderr.flush()
+        time.sleep(0.5)
         comm.Abort(1)
 
     sys.excepthook = hook

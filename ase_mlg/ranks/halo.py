@@ -71,7 +71,8 @@ class Halo:
             if len(idx):
                 self.sends[r] = (idx, img + self.own_images[idx])
         self.pbc = box.pbc & ~(np.array(partition.dims) > 1)
-        counts = comm.alltoall([len(self.sends.get(r, ((),))[0]) for r in range(comm.size)])
+        counts = comm.alltoall([len(self.sends[r][0]) if r in self.sends else 0
+                                for r in range(comm.size)])
         self.recv_counts = {r: c for r, c in enumerate(counts) if c}
         self.nghost = int(sum(self.recv_counts.values()))
         self.ghost_numbers = self._trade(lambda idx, img: np.asarray(numbers, np.int64)[idx],
@@ -98,7 +99,8 @@ class Halo:
                     keep.append(buf)
                     requests.append(self.comm.Isend(buf, dest=r, tag=7))
         if me in self.sends:
-            out[spans[me]] = pack(*self.sends[me])
+            idx, img = self.sends[me]
+            out[spans[me]] = pack(idx, img)
         if requests:
             MPI.Request.Waitall(requests)
         return out

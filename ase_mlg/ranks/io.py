@@ -43,12 +43,21 @@ class Trajectory:
     def write(self, atoms=None, **kwargs):
         """Write one frame (collective on a distributed system)."""
         atoms = self.atoms if atoms is None else atoms
+        atoms = getattr(atoms, "atoms", atoms)  # ASE's dynamics pass an Optimizable
         if is_distributed(atoms):
             atoms = atoms.gather(root=0)
         if self._writer is not None:
             self._writer.write(atoms, **kwargs)
 
     __call__ = write
+
+    def set_description(self, description):
+        """ASE's dynamics describe themselves in the file's header."""
+        if self._writer is not None:
+            self._writer.set_description(description)
+
+    def __len__(self):
+        return len(self._writer) if self._writer is not None else 0
 
     def close(self):
         if self._writer is not None:
