@@ -87,6 +87,11 @@ def _check(cmd):
                     assert word in ("not", "and", "or") or f"{word}:" in markers, word
             elif not a.startswith("-"):
                 assert os.path.exists(os.path.join(ROOT, a)), a
+    elif cmd[0] == "mpiexec":
+        # mpiexec -n P python SCRIPT: a script of the repository (run by
+        # tests/test_ranks.py and tests/test_surface_examples.py)
+        assert cmd[1] == "-n" and int(cmd[2]) >= 1 and cmd[3] == "python", cmd
+        assert os.path.exists(os.path.join(ROOT, cmd[4])), cmd[4]
     elif cmd[0] == "export":
         assert all(re.fullmatch(r"\w+=\S*", a) for a in cmd[1:]), cmd
     else:

@@ -91,6 +91,7 @@ def resolve_comm(comm=None):
                 raise ImportError("ase_mlg.distribute: running under mpiexec but mpi4py "
                                   f"is not installed; {MPI_HINT}") from None
             return SerialComm()
+        _align_ase_world(MPI.COMM_WORLD)
         return MPI.COMM_WORLD
     if isinstance(comm, SerialComm):
         return comm
@@ -105,6 +106,17 @@ def resolve_comm(comm=None):
         return comm
     raise TypeError(f"comm: expected an mpi4py communicator or ase.parallel.world, "
                     f"got {type(comm).__name__}")
+
+
+def _align_ase_world(world):
+    """Make ``ase.parallel.world`` mpi4py's world.  ASE picks its world at
+    first use, from whether mpi4py was imported by then: a script that
+    thermalised its atoms (which broadcasts through ``world``) before
+    :func:`~ase_mlg.distribute` imported mpi4py would otherwise have every
+    rank print ``parprint`` lines and write MDLogger's file as rank 0."""
+    import ase.parallel as ap
+    if ap.world.size != world.size:
+        ap.world.comm = ap.MPI4PY(world)
 
 
 def agree(comm, fn, *args, **kwargs):
