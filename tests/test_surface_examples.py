@@ -78,7 +78,15 @@ def _relax_nanoparticle(tmp_path):
     assert v["fmax"] <= 1e-4  # eV/Å
 
 
-CHECKS = {"nve_argon.py": _nve_argon, "nvt_langevin.py": _nvt_langevin,
+def _md_ranks(tmp_path):
+    # one rank here (python md_ranks.py); .ci/run runs it under mpiexec -n 2 and -n 3
+    v = _run("md_ranks.py", tmp_path, e=("(e0, e1)"), ranks="atoms.comm.size",
+             frames="len(__import__('ase.io', fromlist=['read']).read('md_ranks.traj', ':'))")
+    e0, e1 = v["e"]  # eV/atom
+    assert abs(e1 - e0) < 1e-4 and v["ranks"] == 1 and v["frames"] == 100 // 25 + 1
+
+
+CHECKS = {"nve_argon.py": _nve_argon, "md_ranks.py": _md_ranks, "nvt_langevin.py": _nvt_langevin,
           "binary_mixture.py": _binary_mixture,
           "relax_nanoparticle.py": _relax_nanoparticle}
 
