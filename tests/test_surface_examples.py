@@ -40,7 +40,7 @@ def _run(name, tmp_path, **wanted):
     res = subprocess.run([sys.executable, "-c", _RUNNER, os.path.join(EXAMPLES, name),
                           str(out), json.dumps(wanted)],
                          capture_output=True, text=True, timeout=300, env=env,
-                         stdin=subprocess.DEVNULL)
+                         stdin=subprocess.DEVNULL, cwd=tmp_path)  # files it writes land there
     assert res.returncode == 0, res.stderr[-2000:]
     for stream in (res.stdout, res.stderr):
         assert "\r" not in stream and "%|" not in stream
