@@ -10,7 +10,8 @@ of an owned atom is in the local list); the energy and the virial are the
 sums over owned atoms of the per-atom energies and virials (half of each
 pair on each atom, ASE's convention), added over ranks in rank order
 (:func:`~ase_mlg.ranks.comm.ordered_sum`).  Pairs between two ghosts are
-summed and dropped (their share of the work is reported by ``stats``).
+not this rank's work: they are dropped from the local list after each build
+(:func:`_drop_ghost_pairs`), so a ghost's force is partial and never read.
 
 The list is rebuilt on every rank together: a rank's list holds while its
 own :meth:`VerletList.kept` bound holds, and a rebuild anywhere is a
@@ -24,6 +25,7 @@ atom), migrates atoms and makes new ghost lists.
 import time
 
 import numpy as np
+from numba import njit
 
 from ..verletlist import VerletList
 from .comm import agree, ordered_sum
@@ -31,6 +33,27 @@ from .halo import Halo, check_atoms, migrate
 from .partition import Partition
 
 __all__ = ["RankEngine"]
+
+
+@njit(cache=True)
+def _drop_ghost_pairs(rowptr, nbr, code, ghost):
+    """Drop, in place, the pairs of a half list in compressed rows whose
+    two atoms are ghosts (``ghost`` per row); one forward pass, the kept
+    pairs in their order (within-cutoff-first rows stay so).  Returns the
+    new pair count."""
+    w = 0
+    start = rowptr[0]
+    for t in range(rowptr.shape[0] - 1):
+        stop = rowptr[t + 1]
+        for q in range(start, stop):
+            u = nbr[q]
+            if not (ghost[t] and ghost[u]):
+                nbr[w] = u
+                code[w] = code[q]
+                w += 1
+        rowptr[t + 1] = w
+        start = stop
+    return w
 
 
 def _finite(atoms):
@@ -142,6 +165,10 @@ class RankEngine:
             local = agree(comm, self._rebuild, atoms)
             agree(comm, self.vl.rebuild, local, atoms.cell.array, self.halo.pbc,
                   self._numbers(atoms))
+            pl = self.vl.pairs
+            ghost = np.ascontiguousarray(pl.order >= len(atoms))
+            m = _drop_ghost_pairs(pl.rowptr, pl.nbr, pl.code, ghost)
+            pl.nbr, pl.code = pl.nbr[:m], pl.code[:m]
         else:
             self.vl.keep(X, atoms.cell.array)
         t1 = time.perf_counter()
