@@ -23,7 +23,7 @@ import traceback
 
 import numpy as np
 
-__all__ = ["SerialComm", "RankError", "resolve_comm", "agree", "ordered_sum",
+__all__ = ["SerialComm", "RankError", "resolve_comm", "agree", "any_rank", "ordered_sum",
            "abort_on_exception", "MPI_HINT"]
 
 MPI_HINT = 'pip install "ase-mlg[mpi]" (mpi4py and MPICH)'
@@ -119,28 +119,39 @@ def _align_ase_world(world):
         ap.world.comm = ap.MPI4PY(world)
 
 
-def agree(comm, fn, *args, **kwargs):
+def any_rank(comm, *flags):
+    """For each flag, whether it is true on any rank (one small reduction)."""
+    v = np.array([bool(f) for f in flags], dtype=np.int32)
+    if comm.size > 1:
+        from mpi4py import MPI
+        comm.Allreduce(MPI.IN_PLACE, v, op=MPI.MAX)
+    return [bool(x) for x in v]
+
+
+def agree(comm, fn, *args, vote=None, **kwargs):
     """``fn(*args, **kwargs)`` on every rank; if it raised on any rank, the
     same exception on every rank.
 
-    The ranks exchange one small message (their error or None) after
-    ``fn``; call it on every rank at the same point of the run.  The first
-    failing rank's exception type is raised where it is a ValueError,
-    TypeError or ImportError (what a user catches), else :class:`RankError`;
-    its message names the failing ranks.
+    The ranks reduce one flag after ``fn`` (and, with ``vote``, whether
+    ``vote(result)`` holds on any rank: then ``(result, any vote)`` is
+    returned); only after a failure do they exchange the messages.  Call it
+    on every rank at the same point of the run.  The first failing rank's
+    exception type is raised where it is a ValueError, TypeError or
+    ImportError (what a user catches), else :class:`RankError`; its message
+    names the failing ranks.
     """
     try:
         out, err = fn(*args, **kwargs), None
     except Exception as e:  # noqa: BLE001 -- every rank must hear of any error
         out, err = None, (type(e).__name__, str(e), e)
+    failed_somewhere, voted = any_rank(comm, err is not None,
+                                       err is None and vote is not None and vote(out))
+    if not failed_somewhere:
+        return (out, voted) if vote is not None else out
     if comm.size == 1:
-        if err is not None:
-            raise err[2]
-        return out
+        raise err[2]
     errors = comm.allgather(None if err is None else err[:2])
     failed = [(r, e) for r, e in enumerate(errors) if e is not None]
-    if not failed:
-        return out
     kind = failed[0][1][0]
     cls = {"ValueError": ValueError, "TypeError": TypeError,
            "ImportError": ImportError}.get(kind, RankError)

@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit
 
 from ..verletlist import VerletList
-from .comm import agree, ordered_sum
+from .comm import agree, any_rank, ordered_sum
 from .halo import Halo, check_atoms, migrate
 from .partition import Partition
 
@@ -94,11 +94,12 @@ class RankEngine:
 
     @staticmethod
     def union(comm, changes):
-        """The changes seen on any rank (ASE's ``check_state``, collective)."""
-        seen = set().union(*comm.allgather(list(changes)))
-        return [c for c in ("positions", "numbers", "cell", "pbc", "initial_magmoms",
-                            "initial_charges") if c in seen] + sorted(
-            seen - {"positions", "numbers", "cell", "pbc", "initial_magmoms", "initial_charges"})
+        """The changes seen on any rank, in ``all_changes``' order (ASE's
+        ``check_state``, collective: one small reduction)."""
+        from ase.calculators.calculator import all_changes
+        names = list(all_changes)  # the same list on every rank: the flags line up
+        seen = any_rank(comm, *(n in changes for n in names))
+        return [n for n, s in zip(names, seen) if s]
 
     def _local(self, atoms, ghosts):
         x = atoms.arrays["positions"] + self.halo.own_images @ atoms.cell.array
@@ -148,20 +149,19 @@ class RankEngine:
         and ``virial`` (eV) global, ``forces``, ``energies``,
         ``virials_voigt`` of the owned atoms.  Collective."""
         comm = atoms.comm
-        agree(comm, _finite, atoms)
         changed = (self.halo is None or self._key is None
                    or not np.array_equal(self._key[0], atoms.numbers)
                    or not np.array_equal(self._key[1], atoms.pbc))
-        X = None
-        if not any(comm.allgather(changed)):
+        _, rebuild = agree(comm, _finite, atoms, vote=lambda _: changed)
+        if not rebuild:
             t0 = time.perf_counter()
             local = self._local(atoms, self.halo.exchange(atoms.arrays["positions"],
                                                           atoms.cell.array))
             self.timings["halo"] += time.perf_counter() - t0
-            X = agree(comm, self.vl.kept, local, atoms.cell.array, self.halo.pbc,
-                      self._numbers(atoms))
+            X, rebuild = agree(comm, self.vl.kept, local, atoms.cell.array, self.halo.pbc,
+                               self._numbers(atoms), vote=lambda x: x is None)
         t0 = time.perf_counter()
-        if any(comm.allgather(X is None)):
+        if rebuild:
             local = agree(comm, self._rebuild, atoms)
             agree(comm, self.vl.rebuild, local, atoms.cell.array, self.halo.pbc,
                   self._numbers(atoms))
