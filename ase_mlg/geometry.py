@@ -15,7 +15,7 @@ arrays, so the grid can be used from any code.
 
 import numpy as np
 
-__all__ = ["Box", "as_positions", "cell_change", "grid_shape"]
+__all__ = ["Box", "as_pbc", "as_positions", "cell_change", "grid_shape"]
 
 
 def as_positions(positions, name="positions"):
@@ -50,6 +50,21 @@ def as_positions(positions, name="positions"):
     return arr
 
 
+def as_pbc(pbc):
+    """Return ``pbc`` as a new bool array of 3.
+
+    Raises
+    ------
+    ValueError
+        If it is not a bool or 3 bools (numbers are read as bools).
+    """
+    pbc_arr = np.asarray(pbc)
+    if pbc_arr.dtype == object or pbc_arr.dtype.kind not in "biuf" \
+            or pbc_arr.shape not in ((), (3,)):
+        raise ValueError(f"pbc: expected a bool or 3 bools, got {pbc!r}")
+    return np.broadcast_to(pbc_arr.astype(bool), (3,)).copy()
+
+
 class Box:
     """A cell with periodic boundary conditions.
 
@@ -70,11 +85,7 @@ class Box:
     """
 
     def __init__(self, cell=None, pbc=False):
-        pbc_arr = np.asarray(pbc)
-        if pbc_arr.dtype == object or pbc_arr.dtype.kind not in "biuf" \
-                or pbc_arr.shape not in ((), (3,)):
-            raise ValueError(f"pbc: expected a bool or 3 bools, got {pbc!r}")
-        pbc = np.broadcast_to(pbc_arr.astype(bool), (3,)).copy()
+        pbc = as_pbc(pbc)
         if cell is None:
             cell = np.zeros((3, 3))
         cell = np.asarray(cell)

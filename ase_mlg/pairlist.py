@@ -21,7 +21,7 @@ from .parallel import (dynamic_schedule, run_chunks, serial_and_parallel, thread
                        use_threads)
 
 __all__ = ["PairList", "ListArrays", "PairOutput", "Orientation", "pair_vector",
-           "ase_vector"]
+           "ase_vector", "put_pair"]
 
 NGROUP = 8  # row groups of full lists: fixed, so the output never depends on threads
 
@@ -432,8 +432,9 @@ def _atom_totals(cnt, order, r0, r1, tot):
 
 
 @njit(cache=True, inline="always")
-def _put(out, q, i, j, d, Dx, Dy, Dz, S0, S1, S2):
-    """Entry ``q`` of the output: ``(i, j, d, D, S)``, the wanted ones."""
+def put_pair(out, q, i, j, d, Dx, Dy, Dz, S0, S1, S2):
+    """Entry ``q`` of the output: ``(i, j, d, D, S)``, the wanted ones
+    (also the writer of :mod:`ase_mlg.allpairs`)."""
     out.out_i[q] = i
     if out.want_j:
         out.out_j[q] = j
@@ -491,12 +492,12 @@ def _write_pairs(lists, code, X, cell, r0, r1, mode, orient, cur, out):
                     cur[t] = q + 1
                 else:
                     q = p
-                _put(out, q, a, j, d, Dx, Dy, Dz, S0, S1_, S2)
+                put_pair(out, q, a, j, d, Dx, Dy, Dz, S0, S1_, S2)
             if not mirror or (u == t and k == zero_code):
                 continue
             q = cur[u]
             cur[u] = q + 1
-            _put(out, q, j, a, d, -Dx, -Dy, -Dz, -S0, -S1_, -S2)
+            put_pair(out, q, j, a, d, -Dx, -Dy, -Dz, -S0, -S1_, -S2)
 
 
 @njit(cache=True, nogil=True)
