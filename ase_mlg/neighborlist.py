@@ -10,9 +10,13 @@
   as given (atoms outside the cell included, periodic or not); self pairs
   ``(i, i, S=0)`` only with ``self_interaction=True``, an atom's own periodic
   images always; ints are int64 (``int``), floats float64.
-  *Ordering*: sorted by ``i`` (ASE's only guarantee).  Within one ``i`` the
-  pairs come in the grid's order -- deterministic for given input, but not
-  ASE's (which is itself unspecified: an unstable argsort).
+  *Ordering*: sorted by ``i`` (ASE's only guarantee).  Within one ``i``:
+  small systems (:mod:`ase_mlg.allpairs`, up to ``allpairs.MAX_WORK``
+  tested images, about 500 atoms of a metal at 5 Å) by ``j``, then ``S``;
+  larger ones in the grid's order -- deterministic for given input, but
+  not ASE's (which is itself unspecified: an unstable argsort).  Both give
+  the same pairs, ``d`` to the bit and ``D`` equal (the block query writes
+  a pair's second entry as ``-D``, which may turn a zero into -0.0).
   ``max_nbins`` is accepted and ignored (the MLG has no bins).
 * :class:`NeighborList`, :class:`PrimitiveNeighborList`,
   :class:`NewPrimitiveNeighborList`: the semantics of the ASE classes of the
@@ -60,6 +64,7 @@ from ase.neighborlist import (get_distance_indices, get_distance_matrix,
 from ase.neighborlist import NewPrimitiveNeighborList as _AseNewPrimitive
 from scipy import sparse as _sp
 
+from .allpairs import all_pairs
 from .blocks import BlockIndex
 from .geometry import Box, as_positions
 from .grid import MLG
@@ -246,6 +251,12 @@ def primitive_neighbor_list(quantities, pbc, cell, positions, cutoff,
             raise ValueError("cell: expected a finite (3, 3) array")
         pos = np.ascontiguousarray(pos @ cell)
     if grid is None:
+        # small systems: one compiled call, no grid (ase_mlg.allpairs); it
+        # answers None where the grid's query is faster or must decide
+        res = all_pairs(pos, cell, pbc, (mode, cut, radii, types, table),
+                        bool(self_interaction), quantities)
+        if res is not None:
+            return _assemble(quantities, res)
         grid = MLG(pos, cell, pbc)
     else:
         box = Box(cell, pbc)

@@ -1,0 +1,400 @@
+"""Every pair of atoms at every periodic image in reach: the neighbour list
+of small systems (issue 24.1).
+
+ML potentials ask for a neighbour list of 1-500 atoms at every step.  There
+the exact block query (:mod:`ase_mlg.query`) costs what its set-up costs --
+the grid's construction, the block index, the scan's room and codes, the
+full list's row groups and cursors: about 30 Python-level steps, 0.3-0.9 ms
+before the first pair on one to 60 atoms, where vesin and matscipy answer
+in 13-60 µs.  This module answers in one compiled call from the arrays to
+``ase.neighborlist``'s: for every pair of atoms ``i <= j`` it bounds the
+cell shifts ``S`` that can bring them within the cutoff, tests each image,
+and writes the kept pairs at both atoms.
+
+Which shifts are tested
+-----------------------
+With ``B`` the inverse of the (completed) cell, ``D @ B = f_j - f_i + S``
+for the fractional coordinates ``f = x @ B``, and ``|(D @ B)_a| <= |D| |B[:,
+a]| = |D| / h_a`` (``h_a`` the cell height; docs/design.md §6, step 3, the
+same bound the grid coordinates rest on).  So a pair within ``rc`` has
+``|f_j,a - f_i,a + S_a| < rc / h_a`` on every axis: on a periodic axis the
+``S_a`` in that interval, padded for round-off, are all that can qualify
+(however many: a cutoff larger than the cell, an atom and its own images);
+on an open axis ``S_a = 0`` and the pair is dropped outright when the
+interval misses 0.  Every tested image is decided as the block query
+decides its candidates near the cutoff: ``D = x[j] - x[i] + S @ cell`` in
+ASE's operation order (:func:`~ase_mlg.pairlist.ase_vector`) and ``d <
+cutoff`` strictly, so the set of pairs is the large path's, and the pair
+is written at both atoms by the large path's writer
+(:func:`~ase_mlg.pairlist.put_pair`), the mirror as ``(j, i, -D, d, -S)``:
+``i``, ``j``, ``S``, ``d`` and ``D`` are bitwise the large path's.
+
+Order: sorted by ``i``, and within one ``i`` by ``j``, then ``S``
+lexicographically (``np.lexsort((S[:, 2], S[:, 1], S[:, 0], j, i))``).  The
+large path's order within one ``i`` is the grid's; ASE's is that of an
+unstable sort.  ASE guarantees only the order by ``i``.
+
+Why this is not a near-twin of the pair loops
+---------------------------------------------
+The package's pair loops walk a spatial structure: the block query
+(``query._scan``) the blocks of the MLG with their bounding boxes, Boris's
+template a window of sites, the pair kernels and the list writer
+(``pairlist._write_pairs``) the rows of a :class:`~ase_mlg.pairlist.PairList`.
+Each needs that structure built first, which is the cost this path exists to
+avoid.  This loop has no structure: all ``n (n + 1) / 2`` atom pairs and an
+image range per pair computed from fractional coordinates.  What a pair
+*is* -- its ``D`` in ASE's order, its cutoff rule, its output entry and its
+mirror -- is shared: :func:`~ase_mlg.pairlist.ase_vector` and
+:func:`~ase_mlg.pairlist.put_pair` are the large path's own.  An O(n^2)
+loop is the right tool only while ``n`` is small, so it stops where the
+block query gets cheaper (:data:`MAX_WORK`) and the caller takes the large
+path.
+
+The call either answers or says "not mine" (None); it never raises on its
+own.  Inputs it does not take -- a cell with a missing or degenerate
+vector, atoms far out, cutoffs reaching a million images, too much work --
+go to :class:`~ase_mlg.geometry.Box` or the large path, which raise the
+errors the package always raised.
+"""
+
+import numpy as np
+from numba import njit
+
+from .geometry import Box, as_pbc
+from .pairlist import PairOutput, ase_vector, put_pair
+
+__all__ = ["all_pairs", "MAX_WORK"]
+
+#: Above this many tested images (atom pairs ``n (n + 1) / 2`` times the
+#: images a pair spans, ``prod(2 rc / h_a + 1)`` over periodic axes:
+#: :func:`work`) the block query can be faster.  Measured (one thread,
+#: 'ijdS', this path's time over the block query's): fcc Cu at 5 Å 0.79 at
+#: 500 atoms (work 4.7e5), 0.73 at 864 (1.2e6), 1.30 at 1,372 (2.6e6);
+#: 216 waters at 6 Å 0.73 (9.4e5); LJ argon at 8.5 Å, where each atom has
+#: ~50 neighbours to write, 1.07 at 500 atoms (5.0e5) and 2.2 at 1,000
+#: (1.6e6).  6e5 keeps every scene here at or below break-even and 500
+#: atoms of a metal at 5-6 Å on this path.
+MAX_WORK = 6e5
+
+# statuses of the kernel
+_DONE, _NEEDS_BOX, _NOT_MINE = 0, 1, 2
+# a periodic atom further than this many cells out goes to the large path:
+# the image interval's round-off grows with the shift (docs/design.md §6)
+_FAR_CELLS = 1024.0
+_EMPTY_F = np.zeros(0)
+_EMPTY_I = np.zeros(0, np.int64)
+_EMPTY_TABLE = np.zeros((1, 1))
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def _pair_cutoff(cutoff, i, j):
+    """The cutoff of the pair (i, j), Å: ``cutoff = (mode, cut, radii,
+    types, table)`` gives the scalar ``cut``, ``radii[i] + radii[j]`` or
+    ``table[types[i], types[j]]`` (``query.CUT_*``)."""
+    mode, cut, radii, types, table = cutoff
+    if mode == 0:
+        return cut
+    if mode == 1:
+        return radii[i] + radii[j]
+    return table[types[i], types[j]]
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def _frame(cell, pbc, frame):
+    """The completed cell, its inverse and inverse heights, as
+    :class:`~ase_mlg.geometry.Box` completes and checks a cell.
+
+    ``frame[0:3]`` gets the cell the shifts refer to (Box's ``full``),
+    ``frame[3:6]`` its inverse ``B``, ``frame[6]`` the inverse heights ``1
+    / h_a = |B[:, a]|`` and ``frame[9, 0]`` the largest residual of ``cell
+    @ B - I``.  Returns False where Box must decide: a non-finite cell, a
+    missing vector (but for no cell at all and no pbc, completed to the
+    identity, as Box does), a volume Box could refuse.  (Scalars, each
+    array element read or written once: every indexing is more for numba
+    to compile on the first call -- this function took 0.7 s written with
+    2-D indexing throughout.)"""
+    a, b, c = cell[0, 0], cell[0, 1], cell[0, 2]
+    d, e, f = cell[1, 0], cell[1, 1], cell[1, 2]
+    g, h, k = cell[2, 0], cell[2, 1], cell[2, 2]
+    l0 = np.sqrt(a * a + b * b + c * c)
+    l1 = np.sqrt(d * d + e * e + f * f)
+    l2 = np.sqrt(g * g + h * h + k * k)
+    if not (l0 - l0 == 0.0 and l1 - l1 == 0.0 and l2 - l2 == 0.0):  # NaN or inf
+        return False
+    # Box's threshold for a missing vector is 1e-12 of the scale: a length
+    # near it is Box's call
+    scale = max(max(l0, l1), max(l2, 1.0))
+    lo, hi = 0.5e-12 * scale, 2e-12 * scale
+    if l0 <= lo and l1 <= lo and l2 <= lo and not (pbc[0] or pbc[1] or pbc[2]):
+        a, b, c = 1.0, 0.0, 0.0
+        d, e, f = 0.0, 1.0, 0.0
+        g, h, k = 0.0, 0.0, 1.0
+        l0 = l1 = l2 = 1.0
+    elif not (l0 > hi and l1 > hi and l2 > hi):
+        return False
+    # the inverse: cofactors over the determinant
+    A, B, C = e * k - f * h, f * g - d * k, d * h - e * g
+    det = a * A + b * B + c * C
+    # Box refuses below 1e-9 of the vectors' product: near it, Box decides
+    if not abs(det) > 2e-9 * l0 * l1 * l2:
+        return False
+    A, B, C = A / det, B / det, C / det
+    D, E, F = (c * h - b * k) / det, (a * k - c * g) / det, (b * g - a * h) / det
+    G, H, K = (b * f - c * e) / det, (c * d - a * f) / det, (a * e - b * d) / det
+    frame[0, 0], frame[0, 1], frame[0, 2] = a, b, c
+    frame[1, 0], frame[1, 1], frame[1, 2] = d, e, f
+    frame[2, 0], frame[2, 1], frame[2, 2] = g, h, k
+    frame[3, 0], frame[3, 1], frame[3, 2] = A, D, G
+    frame[4, 0], frame[4, 1], frame[4, 2] = B, E, H
+    frame[5, 0], frame[5, 1], frame[5, 2] = C, F, K
+    frame[6, 0] = np.sqrt(A * A + B * B + C * C)
+    frame[6, 1] = np.sqrt(D * D + E * E + F * F)
+    frame[6, 2] = np.sqrt(G * G + H * H + K * K)
+    # cell @ inverse - I, the largest entry
+    worst = max(abs(a * A + b * B + c * C - 1.0), abs(d * D + e * E + f * F - 1.0))
+    worst = max(worst, abs(g * G + h * H + k * K - 1.0))
+    worst = max(worst, max(abs(a * D + b * E + c * F), abs(a * G + b * H + c * K)))
+    worst = max(worst, max(abs(d * A + e * B + f * C), abs(d * G + e * H + f * K)))
+    frame[9, 0] = max(worst, max(abs(g * A + h * B + k * C), abs(g * D + h * E + k * F)))
+    return True
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def _shifts(df, reach, periodic):
+    """The shifts ``lo..hi`` of one axis that can bring a pair within
+    reach: ``|df + S| <= reach`` (fractions of a cell) on a periodic axis,
+    ``S = 0`` on an open one if ``|df| <= reach``; ``lo > hi`` for none."""
+    if periodic:
+        return int(np.ceil(-df - reach)), int(np.floor(-df + reach))
+    if abs(df) > reach:
+        return 0, -1
+    return 0, 0
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def _half_pairs(pos, frame, f, pbc, cutoff, self_interaction, i0, m, store):
+    """The pairs ``i <= j`` within the cutoff, rows ``i0...`` on, in (i, j,
+    S) order, from entry ``m`` of ``store`` (rows ``i, j, S``).  Returns
+    ``(m, i)``: rows before ``i`` are done (``i < n`` when row ``i`` ran
+    out of room: grow the store and call again from it)."""
+    n = pos.shape[0]
+    full = frame[0:3]
+    h0, h1, h2 = frame[6, 0], frame[6, 1], frame[6, 2]
+    t0, t1, t2 = frame[7, 0], frame[7, 1], frame[7, 2]
+    p0, p1, p2 = pbc[0], pbc[1], pbc[2]
+    for i in range(i0, n):
+        start = m
+        fi0, fi1, fi2 = f[i, 0], f[i, 1], f[i, 2]
+        for j in range(i, n):
+            rc = _pair_cutoff(cutoff, i, j)
+            if not rc > 0.0:
+                continue
+            lo0, hi0 = _shifts(f[j, 0] - fi0, rc * h0 + t0, p0)
+            lo1, hi1 = _shifts(f[j, 1] - fi1, rc * h1 + t1, p1)
+            lo2, hi2 = _shifts(f[j, 2] - fi2, rc * h2 + t2, p2)
+            # a cheap reject before the square root: sqrt(d2) < rc implies
+            # d2 < rc^2 (1 + 1e-12) whatever the rounding
+            rc2 = rc * rc * (1.0 + 1e-12)
+            for S0 in range(lo0, hi0 + 1):
+                for S1 in range(lo1, hi1 + 1):
+                    for S2 in range(lo2, hi2 + 1):
+                        if i == j and S0 == 0 and S1 == 0 and S2 == 0 \
+                                and not self_interaction:
+                            continue
+                        Dx, Dy, Dz = ase_vector(pos, j, i, S0, S1, S2, full)
+                        d2 = Dx * Dx + Dy * Dy + Dz * Dz
+                        if d2 >= rc2:
+                            continue
+                        d = np.sqrt(d2)
+                        if not d < rc:
+                            continue
+                        if m == store.shape[0]:
+                            return start, i
+                        store[m, 0] = i
+                        store[m, 1] = j
+                        store[m, 2] = S0
+                        store[m, 3] = S1
+                        store[m, 4] = S2
+                        m += 1
+    return m, n
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def _grow(store):
+    """The pair store, twice as long, its contents kept."""
+    bigger = np.empty((2 * store.shape[0], store.shape[1]), np.int64)
+    for k in range(store.shape[0]):
+        for c in range(store.shape[1]):
+            bigger[k, c] = store[k, c]
+    return bigger
+
+
+@njit(cache=True)
+def _all_pairs(pos, cell, pbc, mode, cut, radii, types, table, self_interaction,
+               want, max_work):
+    """Every pair within the cutoff at both atoms, ordered by (i, j, S).
+
+    ``want``: bits 1, 2, 4, 8 for j, d, D, S.  Returns ``(status, i, j, d,
+    D, S)``; status ``_NEEDS_BOX`` (the cell is Box's to complete or
+    refuse) or ``_NOT_MINE`` (the large path's) with empty arrays."""
+    n = pos.shape[0]
+    # every array is np.empty of one of four kinds (1-D/2-D, int64/float64):
+    # each other numpy call would be one more implementation to compile.
+    # No constant is passed to a kernel: numba compiles a callee once more
+    # for each literal argument (measured: 0.7 s of a cold start)
+    none = n - n
+    empty = (np.empty(none, np.int64), np.empty(none, np.int64), np.empty(none, np.float64),
+             np.empty((none, 3), np.float64), np.empty((none, 3), np.int64))
+    frame = np.empty((10, 3), np.float64)
+    if not _frame(cell, pbc, frame):
+        return (_NEEDS_BOX,) + empty
+    rcmax = cut
+    if mode == 1:
+        for k in range(n):
+            rcmax = max(rcmax, 2.0 * radii[k])
+    elif mode == 2:
+        for a in range(table.shape[0]):
+            for c in range(table.shape[1]):
+                rcmax = max(rcmax, table[a, c])
+    # -- what this path takes: the rest is the large path's (its errors too)
+    scale = 1.0
+    images = 1.0
+    for a in range(3):
+        for c in range(3):
+            scale = max(scale, abs(frame[a, c]))
+        if pbc[a]:
+            images *= 2.0 * rcmax * frame[6, a] + 1.0
+    f = np.empty((n, 3), np.float64)
+    far = False
+    for k in range(n):
+        for a in range(3):
+            scale = max(scale, abs(pos[k, a]))
+            f[k, a] = pos[k, 0] * frame[3, a] + pos[k, 1] * frame[4, a] + pos[k, 2] * frame[5, a]
+            far |= pbc[a] and not abs(f[k, a]) <= _FAR_CELLS
+    if (far or scale > 1e8 * max(rcmax, 1.0) or not images < 1e6
+            or not 0.5 * n * (n + 1) * images <= max_work or not frame[9, 0] < 1e-12):
+        return (_NOT_MINE,) + empty
+    # round-off pads every shift interval (fractions of a cell): the
+    # coordinates' own (relative 1e-9, as the block query pads) and the
+    # inverse's, which grows with the shift
+    for a in range(3):
+        frame[7, a] = (1e-9 * (scale + rcmax) * frame[6, a] + 8.0 * max(frame[9, 0], 1e-16)
+                       * (2.0 * _FAR_CELLS + rcmax * frame[6, a] + 2.0))
+    # -- the half list, each pair i <= j once, in (i, j, S) order
+    idx = np.empty((16 * n + 64, 5), np.int64)
+    m, i = none, none
+    while True:
+        m, i = _half_pairs(pos, frame, f, pbc, (mode, cut, radii, types, table),
+                           self_interaction, i, m, idx)
+        if i == n:
+            break
+        idx = _grow(idx)
+    # -- the full list: each pair at i, its mirror at j
+    cur = np.empty(n + 1, np.int64)
+    for a in range(n + 1):
+        cur[a] = 0
+    for k in range(m):
+        cur[idx[k, 0] + 1] += 1
+        if idx[k, 1] != idx[k, 0]:
+            cur[idx[k, 1] + 1] += 1
+    for a in range(n):
+        cur[a + 1] += cur[a]
+    total = cur[n]
+    out = PairOutput(np.empty(total, np.int64),
+                     np.empty(total if want & 1 else none, np.int64),
+                     np.empty(total if want & 2 else none, np.float64),
+                     np.empty((total if want & 4 else none, 3), np.float64),
+                     np.empty((total if want & 8 else none, 3), np.int64),
+                     want & 1 != 0, want & 2 != 0, want & 4 != 0, want & 8 != 0)
+    # row r takes its mirrors (partners p < r, met while i = p) before its
+    # own pairs (i = r), so each row comes out by (j, S) when a group of
+    # mirrors is written backwards: -S descends where S ascends.  Every
+    # entry's D is computed as ASE computes it, the mirror's too: its d is
+    # bitwise the pair's, and D has no -0.0 that ASE's has not.  (One call
+    # of the writer and of ase_vector: each call site of an inlined
+    # function is one more copy of it to compile.)
+    k = 0
+    while k < m:
+        i = idx[k, 0]
+        j = idx[k, 1]
+        e = k
+        while e < m and idx[e, 0] == i and idx[e, 1] == j:
+            e += 1
+        for r in range(2 * (e - k) if j != i else e - k):
+            q, a, b, sign = k + r, i, j, 1
+            if r >= e - k:
+                q, a, b, sign = e - 1 - (r - (e - k)), j, i, -1
+            S0, S1, S2 = sign * idx[q, 2], sign * idx[q, 3], sign * idx[q, 4]
+            Dx, Dy, Dz = ase_vector(pos, b, a, S0, S1, S2, frame[0:3])
+            put_pair(out, cur[a], a, b, np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz),
+                     Dx, Dy, Dz, S0, S1, S2)
+            cur[a] += 1
+        k = e
+    return _DONE, out.out_i, out.out_j, out.out_d, out.out_D, out.out_S
+
+
+def all_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False,
+              quantities="ijdDS", max_work=MAX_WORK):
+    """``ase.neighborlist``'s arrays of a small system, or None where the
+    large path must answer.
+
+    Parameters
+    ----------
+    positions : (N, 3) float64, C-contiguous
+        Cartesian positions (Å), checked (:func:`~ase_mlg.geometry.as_positions`).
+    cell : (3, 3) float64
+        Cell vectors as rows (Å); zero on open axes allowed.
+    pbc : bool or 3 bools
+    pair_cutoff : tuple
+        ``(mode, cut, radii, types, table)`` as ``neighborlist._parse_cutoff``
+        gives them: ``query.CUT_SCALAR`` with the cutoff ``cut`` (Å),
+        ``CUT_RADII`` with per-atom ``radii`` (pairs within ``r_i + r_j``),
+        ``CUT_TABLE`` with per-atom ``types`` and the ``table`` of pair
+        cutoffs; the unused ones None.
+    self_interaction : bool
+        Keep (i, i, S = 0) (when its cutoff is > 0).
+    quantities : str
+        The letters of 'ijdDS' wanted ('i' always comes back).
+    max_work : float
+        Images to test at most (:data:`MAX_WORK`); beyond, None.
+
+    Returns
+    -------
+    dict with 'i' and the wanted letters (int64 / float64 arrays, the large
+    path's to the bit, ordered by (i, j, S)), or None.
+
+    Raises
+    ------
+    ValueError
+        Only :func:`~ase_mlg.geometry.as_pbc`'s and
+        :class:`~ase_mlg.geometry.Box`'s: the errors the large path raises
+        first on the same input.
+    """
+    if not (type(pbc) is np.ndarray and pbc.dtype == np.bool_ and pbc.shape == (3,)):
+        pbc = as_pbc(pbc)
+    if cell.shape != (3, 3) or cell.dtype != np.float64:
+        return None
+    cell = np.ascontiguousarray(cell)
+    mode, cut, radii, types, table = pair_cutoff
+    want = (("j" in quantities) | ("d" in quantities) << 1 | ("D" in quantities) << 2
+            | ("S" in quantities) << 3)
+    args = (int(mode), float(cut), _EMPTY_F if radii is None else radii,
+            _EMPTY_I if types is None else types,
+            _EMPTY_TABLE if table is None else np.ascontiguousarray(table, np.float64),
+            bool(self_interaction), want, float(max_work))
+    status, i, j, d, D, S = _all_pairs(positions, cell, pbc, *args)
+    if status == _NEEDS_BOX:
+        # Box completes a missing vector of an open axis, or raises what
+        # the large path raises; a cell it completes is one the kernel takes
+        status, i, j, d, D, S = _all_pairs(positions, Box(cell, pbc).full, pbc, *args)
+    if status != _DONE:
+        return None
+    return {"i": i, "j": j, "d": d, "D": D, "S": S}
+
+
+def work(n, cell, pbc, rc):
+    """The kernel's work estimate for ``n`` atoms at cutoff ``rc`` (Å): atom
+    pairs times the images one spans (what :data:`MAX_WORK` bounds)."""
+    pbc = as_pbc(pbc)
+    h = Box(cell, pbc).heights
+    return 0.5 * n * (n + 1) * float(np.prod(np.where(pbc, 2.0 * rc / h + 1.0, 1.0)))
