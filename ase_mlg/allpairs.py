@@ -370,7 +370,9 @@ def all_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False,
         :class:`~ase_mlg.geometry.Box`'s: the errors the large path raises
         first on the same input.
     """
-    if not (type(pbc) is np.ndarray and pbc.dtype == np.bool_ and pbc.shape == (3,)):
+    # one type per argument, so that one compiled kernel serves every call
+    if not (type(pbc) is np.ndarray and pbc.dtype == np.bool_ and pbc.shape == (3,)
+            and pbc.flags.c_contiguous):
         pbc = as_pbc(pbc)
     if cell.shape != (3, 3) or cell.dtype != np.float64:
         return None
@@ -378,8 +380,9 @@ def all_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False,
     mode, cut, radii, types, table = pair_cutoff
     want = (("j" in quantities) | ("d" in quantities) << 1 | ("D" in quantities) << 2
             | ("S" in quantities) << 3)
-    args = (int(mode), float(cut), _EMPTY_F if radii is None else radii,
-            _EMPTY_I if types is None else types,
+    args = (int(mode), float(cut),
+            _EMPTY_F if radii is None else np.ascontiguousarray(radii, np.float64),
+            _EMPTY_I if types is None else np.ascontiguousarray(types, np.int64),
             _EMPTY_TABLE if table is None else np.ascontiguousarray(table, np.float64),
             bool(self_interaction), want, float(max_work))
     status, i, j, d, D, S = _all_pairs(positions, cell, pbc, *args)

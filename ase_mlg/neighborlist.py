@@ -230,7 +230,9 @@ def primitive_neighbor_list(quantities, pbc, cell, positions, cutoff,
     grid : MLG, optional
         A grid already built or updated for exactly these positions, cell and
         pbc (e.g. one maintained across MD steps by ``grid.update``); it is
-        used instead of building a new one.
+        used instead of building a new one.  Without it, small systems
+        (:data:`ase_mlg.allpairs.MAX_WORK`) are answered with no grid at
+        all, by :func:`ase_mlg.allpairs.all_pairs`.
 
     Returns
     -------
