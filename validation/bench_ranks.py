@@ -69,12 +69,14 @@ def worker_mlg(natoms, steps, warm):
     mem = comm.allgather(maxrss_mb())
     ghosts = comm.allgather(eng.counts["ghosts"])
     owned = comm.allgather(len(atoms))
+    pairs = comm.allgather(len(eng.vl.pairs))
     if comm.rank == 0:
         cfg = config()
         print(json.dumps({"step_ms": step_ms, "parts": parts, "mem_mb": max(mem),
                           "rebuilds": eng.counts["rebuilds"] - c0["rebuilds"],
                           "migrated": eng.counts["migrated"] - c0["migrated"],
                           "ghosts": max(ghosts), "owned": [min(owned), max(owned)],
+                          "pairs": max(pairs), "natoms": natoms,
                           "layer": cfg.get("threading_layer"), "threads": cfg.get("threads")}))
 
 
@@ -129,6 +131,8 @@ def main():
     ap.add_argument("--worker")
     ap.add_argument("--atoms", type=int)
     ap.add_argument("--tmp", default="/tmp")
+    ap.add_argument("--json", help="also write every launch's raw results here "
+                    "(validation/ranks_projection.py reads it)")
     a = ap.parse_args()
     if a.worker == "mlg":
         return worker_mlg(a.atoms, a.steps, a.warm)
@@ -138,12 +142,14 @@ def main():
     print(f"# MD across ranks, {_cpu()}, {os.cpu_count()} cores; ms per 5 fs NVE step, "
           f"{a.steps} steps after {a.warm}, median of {a.procs} launches (spread max/min)")
     configs = [("lammps", 1, 1), ("lammps", 2, 1), ("mlg", 1, 1), ("mlg", 2, 1), ("mlg", 1, 2)]
+    raw = {}
     for size in (int(s) for s in a.sizes.split(",")):
         n = fcc_argon_size(size)
         res = {c: [] for c in configs}
         for _ in range(a.procs):
             for c in configs:  # interleaved: drifts of the machine hit all alike
                 res[c].append(launch(c[0], c[1], c[2], n, a.steps, a.warm, a.tmp))
+        raw[n] = {f"{c[0]} {c[1]}x{c[2]}": res[c] for c in configs}
         print(f"\n## {n:,} atoms\n")
         print("| engine | ranks x threads | ms/step | spread | peak MB (largest rank) | breakdown ms/step |")
         print("|---|---|---|---|---|---|")
@@ -169,6 +175,9 @@ def main():
         print(f"\nase-mlg / LAMMPS at 2 ranks: {m2 / l2:.2f}x; 1 -> 2 ranks scaling: ase-mlg "
               f"{m1 / m2:.2f}x, LAMMPS {l1 / l2:.2f}x; ase-mlg 2 ranks x 1 thread against "
               f"1 rank x 2 threads: {m2 / mt:.2f}x the time")
+    if a.json:
+        with open(a.json, "w") as f:
+            json.dump({"cpu": _cpu(), "steps": a.steps, "results": raw}, f, indent=1)
 
 
 if __name__ == "__main__":

@@ -5,17 +5,20 @@ brought into its region, and its ghosts (:class:`~ase_mlg.ranks.halo.Halo`),
 with the cell and the periodic axes that were not cut.  The serial machinery
 runs on it unchanged: a :class:`~ase_mlg.verletlist.VerletList` (its own
 MLG, exact query, row chunks and threads) and the potential's fused pair
-sum.  Forces on owned atoms are then exact (every pair within the cutoff
-of an owned atom is in the local list); the energy and the virial are the
-sums over owned atoms of the per-atom energies and virials (half of each
-pair on each atom, ASE's convention), added over ranks in rank order
-(:func:`~ase_mlg.ranks.comm.ordered_sum`).  Pairs between two ghosts are
-not this rank's work: they are dropped from the local list after each build
-(:func:`_drop_ghost_pairs`), so a ghost's force is partial and never read.
+sum.  Every pair within the cutoff of an owned atom is in the local list.
+
+Each pair of the system is computed on one rank only (Newton's third law
+across ranks, LAMMPS's ``newton on``): after each build the local list
+keeps the pairs of two owned atoms, drops those of two ghosts, and keeps a
+pair of an owned atom and a ghost on the rank that owns the lower original
+index (:func:`_own_pairs`).  The ghosts' forces go back to their owners and
+are added there (:meth:`Halo.add_back`); the energy and the virial are the
+ranks' totals over their pairs, added in rank order
+(:func:`~ase_mlg.ranks.comm.ordered_sum`): no per-atom energies needed.
 
 The list is rebuilt on every rank together: a rank's list holds while its
 own :meth:`VerletList.kept` bound holds, and a rebuild anywhere is a
-rebuild everywhere (one all-gather of a flag a step), so the validity
+rebuild everywhere (one reduction of a flag a step), so the validity
 rule is the serial one (``max |u| < skin / 2`` at a fixed cell; the
 strain bound under NPT) applied to the largest displacement of any atom.
 A rebuild recomputes the partition (balanced by the last list's work per
@@ -36,18 +39,39 @@ __all__ = ["RankEngine"]
 
 
 @njit(cache=True)
-def _drop_ghost_pairs(rowptr, nbr, code, ghost):
-    """Drop, in place, the pairs of a half list in compressed rows whose
-    two atoms are ghosts (``ghost`` per row); one forward pass, the kept
-    pairs in their order (within-cutoff-first rows stay so).  Returns the
-    new pair count."""
+def _own_pairs(rowptr, nbr, code, ghost, index, image):
+    """Keep, in place, the pairs of a half list in compressed rows that
+    this rank computes; returns the new pair count.  Per row: ``ghost``,
+    the original ``index`` and the cell ``image`` (its owner's position
+    plus ``image @ cell``; owned atoms: the image that brings them into the
+    region).  A pair of two owned atoms is kept, of two ghosts dropped; a
+    pair of an owned atom and a ghost is kept when the owned atom has the
+    lower original index (its mirror on the ghost's rank then has the
+    higher one), and between two images of one atom when the ghost's image
+    less the owned one's is lexicographically positive (its mirror has the
+    negative): every pair of the system on one rank, once.  One forward
+    pass; the kept pairs stay in their order."""
     w = 0
     start = rowptr[0]
     for t in range(rowptr.shape[0] - 1):
         stop = rowptr[t + 1]
         for q in range(start, stop):
             u = nbr[q]
-            if not (ghost[t] and ghost[u]):
+            keep = True
+            if ghost[t] and ghost[u]:
+                keep = False
+            elif ghost[t] or ghost[u]:
+                o, g = (u, t) if ghost[t] else (t, u)
+                if index[o] != index[g]:
+                    keep = index[o] < index[g]
+                else:
+                    keep = False
+                    for a in range(3):
+                        d = image[g, a] - image[o, a]
+                        if d != 0:
+                            keep = d > 0
+                            break
+            if keep:
                 nbr[w] = u
                 code[w] = code[q]
                 w += 1
@@ -89,7 +113,7 @@ class RankEngine:
                              grid_kwargs=dict(grid_kwargs or {}))
         self.halo = self.partition = None
         self.counts = dict.fromkeys(("rebuilds", "migrated", "ghosts", "owned"), 0)
-        self.timings = dict.fromkeys(("halo", "rebuild", "list", "kernel"), 0.0)
+        self.timings = dict.fromkeys(("halo", "check", "rebuild", "list", "kernel"), 0.0)
         self._key = None
 
     @staticmethod
@@ -119,7 +143,7 @@ class RankEngine:
         atoms.arrays.update(arrays)
         check_atoms(comm, atoms.indices, atoms.get_global_number_of_atoms())
         self.partition = part
-        self.halo = Halo(comm, part, atoms.arrays["positions"], atoms.numbers)
+        self.halo = Halo(comm, part, atoms.arrays["positions"], atoms.numbers, atoms.indices)
         self.counts["rebuilds"] += 1
         self.counts["migrated"] += int(sum(comm.allgather(left)))
         self.counts["ghosts"], self.counts["owned"] = self.halo.nghost, len(atoms)
@@ -144,6 +168,20 @@ class RankEngine:
     def _numbers(self, atoms):
         return np.concatenate([atoms.numbers, self.halo.ghost_numbers])
 
+    def _build(self, atoms):
+        """Partition, migration, ghosts, the local list of this rank's pairs."""
+        local = self._rebuild(atoms)
+        t0 = time.perf_counter()
+        halo, vl = self.halo, self.vl
+        vl.rebuild(local, atoms.cell.array, halo.pbc, self._numbers(atoms))
+        pl = vl.pairs
+        index = np.concatenate([atoms.indices, halo.ghost_indices])[pl.order]
+        image = np.ascontiguousarray(np.concatenate([halo.own_images, halo.ghost_images])[pl.order])
+        m = _own_pairs(pl.rowptr, pl.nbr, pl.code, np.ascontiguousarray(pl.order >= len(atoms)),
+                       np.ascontiguousarray(index), image)
+        pl.nbr, pl.code = pl.nbr[:m], pl.code[:m]
+        self.timings["list"] += time.perf_counter() - t0
+
     def calculate(self, atoms, energies=False, virials=False, virial=False):
         """Results of ``atoms`` (a ParallelAtoms) on this rank: ``energy``
         and ``virial`` (eV) global, ``forces``, ``energies``,
@@ -157,36 +195,32 @@ class RankEngine:
             t0 = time.perf_counter()
             local = self._local(atoms, self.halo.exchange(atoms.arrays["positions"],
                                                           atoms.cell.array))
-            self.timings["halo"] += time.perf_counter() - t0
+            t1 = time.perf_counter()
             X, rebuild = agree(comm, self.vl.kept, local, atoms.cell.array, self.halo.pbc,
                                self._numbers(atoms), vote=lambda x: x is None)
-        t0 = time.perf_counter()
+            self.timings["halo"] += t1 - t0
+            self.timings["check"] += time.perf_counter() - t1
         if rebuild:
-            local = agree(comm, self._rebuild, atoms)
-            agree(comm, self.vl.rebuild, local, atoms.cell.array, self.halo.pbc,
-                  self._numbers(atoms))
-            pl = self.vl.pairs
-            ghost = np.ascontiguousarray(pl.order >= len(atoms))
-            m = _drop_ghost_pairs(pl.rowptr, pl.nbr, pl.code, ghost)
-            pl.nbr, pl.code = pl.nbr[:m], pl.code[:m]
+            agree(comm, self._build, atoms)
         else:
             self.vl.keep(X, atoms.cell.array)
-        t1 = time.perf_counter()
-        self.timings["list"] += t1 - t0
+        t0 = time.perf_counter()
         vl, pl = self.vl, self.vl.pairs
         res = agree(comm, self.potential.sum_pairs, vl.X, vl.types, pl.rowptr, pl.nbr,
-                    pl.code, vl.svec, pl.order, energies=True, virials=virial or virials,
-                    virial=False, chunks=vl.chunks())
-        self.timings["kernel"] += time.perf_counter() - t1
-        n = len(atoms)
-        out = {"forces": np.ascontiguousarray(res["forces"][:n])}
-        e = res["energies"][:n]
-        out["energy"] = float(ordered_sum(comm, e.sum()))
-        if energies:
-            out["energies"] = np.ascontiguousarray(e)
-        if virial or virials:
-            v = res["virials_voigt"][:n]
-            out["virial"] = ordered_sum(comm, v.sum(axis=0))
-            if virials:
-                out["virials_voigt"] = np.ascontiguousarray(v)
+                    pl.code, vl.svec, pl.order, energies=energies, virials=virials,
+                    virial=virial or virials, chunks=vl.chunks())
+        t1 = time.perf_counter()
+        self.timings["kernel"] += t1 - t0
+        n, halo = len(atoms), self.halo
+        out = {"energy": float(ordered_sum(comm, res["energy"]))}
+        # the ghosts' shares go home: forces (and per-atom values) of owned atoms
+        for key, name in (("forces", "forces"), ("energies", "energies"),
+                          ("virials_voigt", "virials_voigt")):
+            if key in res:
+                mine = np.array(res[key][:n], copy=True)
+                halo.add_back(np.ascontiguousarray(res[key][n:]), mine)
+                out[name] = mine
+        if "virial" in res:
+            out["virial"] = ordered_sum(comm, res["virial"])
+        self.timings["halo"] += time.perf_counter() - t1
         return out

@@ -11,8 +11,9 @@ Ghosts (:class:`Halo`)
     own validity bound, reduced over ranks: docs/design.md §6).  The lists
     of who sends what are made at each rebuild; between rebuilds only the
     positions travel, point to point to the neighbouring ranks, with
-    non-blocking sends and receives.  A ghost is an atom's position plus an
-    integer image of the cell, so it follows the cell under NPT.
+    non-blocking sends and receives, and the ghosts' forces back
+    (:meth:`Halo.add_back`).  A ghost is an atom's position plus an integer
+    image of the cell, so it follows the cell under NPT.
 Migration (:func:`migrate`)
     At a rebuild every atom goes to the rank whose region holds it, with
     every per-atom array of its ``Atoms`` (positions, momenta, numbers,
@@ -42,20 +43,25 @@ class Halo:
         The owned atoms (Å), after migration.
     numbers : (n,) int
         Their atomic numbers.
+    indices : (n,) int
+        Their original indices.
 
     Attributes
     ----------
     own_images : (n, 3) int64
         The cell image that brings each owned atom into its region (its
         local position is ``x + own_images @ cell``).
-    ghost_numbers : (g,) int64
-        The ghosts' atomic numbers, in the order of :meth:`exchange`.
+    ghost_numbers, ghost_indices : (g,) int64
+        The ghosts' atomic numbers and original indices, in the order of
+        :meth:`exchange`.
+    ghost_images : (g, 3) int64
+        The cell image each ghost is its owner's position plus.
     pbc : (3,) bool
         The local system's periodic axes: the system's, less the cut ones
         (their images are ghosts).
     """
 
-    def __init__(self, comm, partition, positions, numbers):
+    def __init__(self, comm, partition, positions, numbers, indices):
         self.comm = comm
         box = partition.box
         frac = box.fractional(positions)
@@ -75,18 +81,22 @@ class Halo:
                                 for r in range(comm.size)])
         self.recv_counts = {r: c for r, c in enumerate(counts) if c}
         self.nghost = int(sum(self.recv_counts.values()))
+        self.spans, at = {}, 0  # source rank -> its ghosts' slice, in rank order
+        for r in sorted(self.recv_counts):
+            self.spans[r] = slice(at, at + self.recv_counts[r])
+            at += self.recv_counts[r]
         self.ghost_numbers = self._trade(lambda idx, img: np.asarray(numbers, np.int64)[idx],
                                          np.int64, ())
+        self.ghost_indices = self._trade(lambda idx, img: np.asarray(indices, np.int64)[idx],
+                                         np.int64, ())
+        self.ghost_images = self._trade(lambda idx, img: img, np.int64, (3,))
 
     def _trade(self, pack, dtype, tail):
         """Send ``pack(idx, img)`` of every send list and receive the
         ghosts' values, in rank order."""
         out = np.empty((self.nghost,) + tail, dtype)
         me = self.comm.rank
-        spans, at = {}, 0
-        for r in sorted(self.recv_counts):
-            spans[r] = slice(at, at + self.recv_counts[r])
-            at += self.recv_counts[r]
+        spans = self.spans
         requests, keep = [], []
         if self.comm.size > 1:
             MPI = _mpi()
@@ -104,6 +114,31 @@ class Halo:
         if requests:
             MPI.Request.Waitall(requests)
         return out
+
+    def add_back(self, ghost_values, owned):
+        """Add each ghost's entry of ``ghost_values`` ((g, ...), the order
+        of :meth:`exchange`) into its owner's row of ``owned`` ((n, ...), in
+        place, on the owning rank): the reverse of :meth:`exchange`, for
+        the forces of pairs computed once across ranks.  Added in a fixed
+        order (this rank's own images, then the other ranks in rank order)."""
+        me, tail = self.comm.rank, ghost_values.shape[1:]
+        requests, received = [], {}
+        if self.comm.size > 1:
+            MPI = _mpi()
+            for r, (idx, _) in self.sends.items():
+                if r != me:
+                    received[r] = np.empty((len(idx),) + tail, ghost_values.dtype)
+                    requests.append(self.comm.Irecv(received[r], source=r, tag=8))
+            for r, s in self.spans.items():
+                if r != me:
+                    requests.append(self.comm.Isend(np.ascontiguousarray(ghost_values[s]),
+                                                    dest=r, tag=8))
+        if me in self.sends:
+            np.add.at(owned, self.sends[me][0], ghost_values[self.spans[me]])
+        if requests:
+            MPI.Request.Waitall(requests)
+        for r in sorted(received):
+            np.add.at(owned, self.sends[r][0], received[r])
 
     def exchange(self, positions, cell):
         """The ghosts' positions (g, 3) now (Å): their owners' positions
