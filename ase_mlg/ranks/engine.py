@@ -80,6 +80,18 @@ def _own_pairs(rowptr, nbr, code, ghost, index, image):
     return w
 
 
+@njit(cache=True)
+def _degrees(rowptr, nbr, order, n):
+    """Pairs of each of the first ``n`` atoms (atom order) in a half list in
+    compressed rows (a bincount of the rows and columns, in one pass)."""
+    deg = np.zeros(order.shape[0])
+    for t in range(rowptr.shape[0] - 1):
+        deg[order[t]] += rowptr[t + 1] - rowptr[t]
+        for q in range(rowptr[t], rowptr[t + 1]):
+            deg[order[nbr[q]]] += 1.0
+    return deg[:n]
+
+
 def _finite(atoms):
     """ValueError naming (by original index) atoms whose position is not finite."""
     bad = ~np.isfinite(atoms.arrays["positions"]).all(axis=1)
@@ -114,7 +126,7 @@ class RankEngine:
         self.halo = self.partition = None
         self.counts = dict.fromkeys(("rebuilds", "migrated", "ghosts", "owned"), 0)
         self.timings = dict.fromkeys(("halo", "check", "rebuild", "list", "kernel"), 0.0)
-        self._key = None
+        self._key = self._buffer = self._shift = None
 
     @staticmethod
     def union(comm, changes):
@@ -126,8 +138,17 @@ class RankEngine:
         return [n for n, s in zip(names, seen) if s]
 
     def _local(self, atoms, ghosts):
-        x = atoms.arrays["positions"] + self.halo.own_images @ atoms.cell.array
-        return np.ascontiguousarray(np.concatenate([x, ghosts]))
+        """The local system's positions: the owned atoms in their region,
+        then the ghosts (one buffer per build, written in place)."""
+        n, cell = len(atoms), atoms.cell.array
+        buf = self._buffer
+        if buf is None or len(buf) != n + len(ghosts):
+            buf = self._buffer = np.empty((n + len(ghosts), 3))
+        if self._shift is None or not np.array_equal(self._shift[0], cell):
+            self._shift = (cell.copy(), self.halo.own_images @ cell)
+        np.add(atoms.arrays["positions"], self._shift[1], out=buf[:n])
+        buf[n:] = ghosts
+        return buf
 
     def _rebuild(self, atoms):
         """New partition, migration, ghosts; returns the local positions."""
@@ -144,6 +165,7 @@ class RankEngine:
         check_atoms(comm, atoms.indices, atoms.get_global_number_of_atoms())
         self.partition = part
         self.halo = Halo(comm, part, atoms.arrays["positions"], atoms.numbers, atoms.indices)
+        self._shift = None
         self.counts["rebuilds"] += 1
         self.counts["migrated"] += int(sum(comm.allgather(left)))
         self.counts["ghosts"], self.counts["owned"] = self.halo.nghost, len(atoms)
@@ -157,10 +179,7 @@ class RankEngine:
         pl, n = self.vl.pairs, len(atoms)
         if pl is None or self.halo is None or pl.natoms != n + self.halo.nghost:
             return None
-        rank_deg = np.diff(pl.rowptr) + np.bincount(pl.nbr, minlength=pl.natoms)
-        deg = np.empty(pl.natoms)
-        deg[pl.order] = rank_deg
-        deg = deg[:n]
+        deg = _degrees(pl.rowptr, pl.nbr, pl.order, n)
         total = ordered_sum(atoms.comm, [deg.sum(), n])
         mean = total[0] / max(total[1], 1.0)
         return deg / mean + 1.0 if mean > 0 else None
