@@ -120,9 +120,10 @@ SCENES = ["lj_liquid", "fcc_cu", "dilute_gas", "nanoparticle", "sheared",
 # tools
 # --------------------------------------------------------------------------
 
-def _boxed(atoms):
+def boxed(atoms):
     """A copy with a real cell on open axes that have none (matscipy inverts
-    the cell; vesin wants a box) -- enclosing the atoms, pbc unchanged."""
+    the cell; vesin wants a box) -- enclosing the atoms, pbc unchanged.
+    validation/bench_small.py uses it too."""
     cell = atoms.cell.array.copy()
     lengths = np.linalg.norm(cell, axis=1)
     if (lengths > 0).all():
@@ -140,7 +141,7 @@ def _boxed(atoms):
 def run_tool(tool, atoms, cutoff, threads):
     """Return (i, j, d) of a full list, or None when the tool cannot do it."""
     if tool in ("matscipy", "vesin", "vesin_sorted"):
-        atoms = _boxed(atoms)
+        atoms = boxed(atoms)
     if tool == "ase_mlg":
         import numba
         from ase_mlg.neighborlist import neighbor_list

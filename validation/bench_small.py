@@ -32,6 +32,9 @@ for _v in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_neighbor_list import boxed  # noqa: E402
+
 
 def cpu_model():
     """lscpu's 'Model name' (the platform's processor string elsewhere)."""
@@ -100,23 +103,6 @@ def tools():
             # matscipy inverts the cell: a box on open axes without one
             "matscipy": lambda a, rc: msn.neighbour_list("ijdS", a, rc),
             "ase-mlg": lambda a, rc: ase_mlg.neighbor_list("ijdS", a, rc)}
-
-
-def boxed(atoms):
-    """A copy with a real cell on open axes that have none (matscipy inverts
-    the cell), enclosing the atoms, pbc unchanged."""
-    cell = atoms.cell.array.copy()
-    lengths = np.linalg.norm(cell, axis=1)
-    if (lengths > 0).all():
-        return atoms
-    a = atoms.copy()
-    ext = np.ptp(atoms.positions, axis=0) + 1.0
-    for ax in range(3):
-        if lengths[ax] == 0:
-            cell[ax] = 0.0
-            cell[ax, ax] = ext[ax]
-    a.set_cell(cell, scale_atoms=False)
-    return a
 
 
 def same_pairs(ref, other):
