@@ -15,7 +15,7 @@ arrays, so the grid can be used from any code.
 
 import numpy as np
 
-__all__ = ["Box", "as_pbc", "as_positions", "cell_change", "grid_shape"]
+__all__ = ["Box", "as_pbc", "as_positions", "cell_change", "grid_shape", "stored_atoms"]
 
 
 def as_positions(positions, name="positions"):
@@ -48,6 +48,22 @@ def as_positions(positions, name="positions"):
         raise ValueError(f"{name}: non-finite (NaN/inf) coordinates for atom(s) "
                          f"{idx[:10].tolist()}{' ...' if len(idx) > 10 else ''}")
     return arr
+
+
+def stored_atoms(old, atoms):
+    """A calculator's stored copy of ``atoms`` (an ASE ``Atoms``): ``old``
+    with the positions and cell of ``atoms`` written into it where the atom
+    count, numbers and pbc are the same (no new copy a call), else
+    ``atoms.copy()``."""
+    if old is atoms:
+        return old
+    if (old is None or len(old) != len(atoms) or not np.array_equal(old.numbers, atoms.numbers)
+            or not np.array_equal(old.pbc, atoms.pbc)):
+        return atoms.copy()
+    old.positions[:] = atoms.positions
+    if not np.array_equal(old.cell.array, atoms.cell.array):
+        old.cell = atoms.cell.copy()
+    return old
 
 
 def as_pbc(pbc):

@@ -132,6 +132,9 @@ class PairList:
         else:
             worst = np.empty(1)
             _gather_serial(positions, self.order, self.images, cell, ref, M, X, worst)
+        if len(worst) == 1:  # the serial gather: one number, no numpy passes
+            w = float(worst[0])
+            return X, (w if w != w else max(w, 0.0))
         umax = np.nan if np.isnan(worst).any() else float(worst.max(initial=0.0))
         return X, umax
 

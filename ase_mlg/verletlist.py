@@ -159,7 +159,7 @@ class VerletList:
         """Forget the list and the grid: the next update builds both."""
         self._tracker.reset()
         self.pairs = self.X = self.svec = self.types = self.width = None
-        self._chunks = self._ref = self._spare = None
+        self._chunks = self._ref = self._spare = self._svec_key = None
 
     @property
     def cutoff(self):
@@ -233,7 +233,11 @@ class VerletList:
         """Keep the list at the row-order positions ``X`` that :meth:`kept`
         returned, in ``cell``."""
         self.X = X
-        self.svec = shift_vectors(self.pairs.shifts, np.asarray(cell, dtype=np.float64))
+        cell = np.asarray(cell, dtype=np.float64)
+        key = (self.version, cell.tobytes())
+        if key != self._svec_key:  # the same cell's shift vectors are the same bits
+            self.svec = shift_vectors(self.pairs.shifts, cell)
+            self._svec_key = key
 
     def _kept_positions(self, positions, cell):
         """Positions in row order if the list still holds every pair within
@@ -241,7 +245,7 @@ class VerletList:
         if self.skin == 0.0:
             return None  # also every per-atom radii list: they take no skin
         ref_cell = self._ref_cell
-        fixed = np.array_equal(cell, ref_cell)
+        fixed = cell.tobytes() == self._ref_bytes or np.array_equal(cell, ref_cell)
         if fixed:
             M = _EYE
         elif callable(self.template):
@@ -275,7 +279,7 @@ class VerletList:
         cell = np.asarray(cell, dtype=np.float64)
         old = self.pairs if self.pairs is not None else self._spare
         self.pairs = self._chunks = self._spare = None
-        self.X = self.svec = self._ref = None
+        self.X = self.svec = self._ref = self._svec_key = None
         grid = self._tracker.follow(positions, cell, pbc)
         positions = grid.positions  # the same numbers, as float64 C arrays
         t1 = time.perf_counter()
@@ -313,6 +317,7 @@ class VerletList:
         self._numbers = None if numbers is None else np.array(numbers, copy=True)
         self._pbc = np.broadcast_to(np.asarray(pbc, dtype=bool), (3,)).copy()
         self._ref_cell = cell.copy()
+        self._ref_bytes = self._ref_cell.tobytes()
         self.version += 1
         self._builds += 1
         self.timings["list_build"] += time.perf_counter() - t0
