@@ -15,7 +15,7 @@ from types import MappingProxyType
 import numpy as np
 from ase.calculators.calculator import Calculator, all_changes
 
-from .geometry import as_positions, stored_atoms
+from .geometry import as_positions, same, stored_atoms
 from .ranks import RankEngine, is_distributed
 from .settings import changed_settings, check_settings, record, refuse_unknown, setting
 from .verletlist import VerletList
@@ -135,10 +135,10 @@ class MLGCalculator(Calculator):
         of an MD step at 10^4 atoms) and stricter, so at worst a call is repeated."""
         old = self.atoms
         changes = list(all_changes) if old is None or len(old) != len(atoms) else [
-            name for name, a, b in (("positions", old.positions, atoms.positions),
-                                    ("numbers", old.numbers, atoms.numbers),
-                                    ("cell", old.cell.array, atoms.cell.array),
-                                    ("pbc", old.pbc, atoms.pbc)) if not np.array_equal(a, b)]
+            name for name, a, b, equal in (
+                ("positions", old.positions, atoms.positions, np.array_equal),
+                ("numbers", old.numbers, atoms.numbers, same), ("cell", old.cell.array,
+                 atoms.cell.array, same), ("pbc", old.pbc, atoms.pbc, same)) if not equal(a, b)]
         # ranks decide together: one rank computing alone would wait forever
         return RankEngine.union(atoms.comm, changes) if is_distributed(atoms) else changes
 
@@ -159,7 +159,7 @@ class MLGCalculator(Calculator):
                             forces=res["forces"])
         if "energies" in res:
             self.results["energies"] = res["energies"]
-        if self.atoms.cell.rank == 3 and "virial" in res:
+        if "virial" in res and self.atoms.cell.rank == 3:
             volume = abs(np.linalg.det(self.atoms.cell.array))
             self.results["stress"] = -res["virial"] / volume
             if "virials_voigt" in res:

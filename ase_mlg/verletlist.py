@@ -37,6 +37,7 @@ import time
 import numpy as np
 
 from .blocks import BlockIndex, block_for_radius
+from .geometry import same
 from .pairsum import shift_vectors
 from .chunks import row_chunks
 from .query import CUT_RADII, half_list, pair_list
@@ -223,8 +224,7 @@ class VerletList:
         cell = np.asarray(cell, dtype=np.float64)
         X = None
         if (self.pairs is not None and len(positions) == self.pairs.natoms
-                and np.array_equal(pbc, self._pbc)
-                and (numbers is None or np.array_equal(numbers, self._numbers))):
+                and same(pbc, self._pbc) and (numbers is None or same(numbers, self._numbers))):
             X = self._kept_positions(positions, cell) if self._ref is not None else None
         self.timings["check"] += time.perf_counter() - t0
         return X
