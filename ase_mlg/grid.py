@@ -151,17 +151,18 @@ def _split(g, perm, sites, coords, ny, nz, b, f, method, out_b, out_f, k):
         split = max(prop, maxl)
     else:
         split = prop
-    # right half
-    out_b[k] = b
+    # right half, then left (element copies: a row assignment compiles
+    # numba's shape-error formatting, seconds of a cold start)
+    for h in range(2):
+        for x in range(8):
+            out_b[k + h, x] = b[x]
+        for x in range(6):
+            out_f[k + h, x] = f[x]
     out_b[k, axis] = cmid
     out_b[k, 6] = a0 + ml
-    out_f[k] = f
     out_f[k, axis] = split
-    # left half
-    out_b[k + 1] = b
     out_b[k + 1, 3 + axis] = cmid
     out_b[k + 1, 7] = a0 + ml
-    out_f[k + 1] = f
     out_f[k + 1, 3 + axis] = split
     return 2
 
@@ -195,8 +196,10 @@ def _subtrees(work, ib, fb, k0, k1):
     ibox = np.empty((cap, 8), dtype=np.int64)
     fbox = np.empty((cap, 6))
     for k in range(k0, k1):
-        ibox[0] = ib[k]
-        fbox[0] = fb[k]
+        for x in range(8):  # element copies, as in _split
+            ibox[0, x] = ib[k, x]
+        for x in range(6):
+            fbox[0, x] = fb[k, x]
         top = 1
         while top > 0:
             top -= 1
