@@ -146,11 +146,9 @@ def _apart(box, r, qlo, qhi, a, b):
 @njit(cache=True)
 def _push(cand, ncand, b, m0, m1, m2):
     if ncand >= cand.shape[0]:
-        new = np.empty((2 * cand.shape[0], 4), dtype=np.int64)
-        for r in range(ncand):  # element copies: an array assignment compiles
-            for x in range(4):   # numba's shape-error formatting (seconds, cold)
-                new[r, x] = cand[r, x]
-        cand = new
+        # doubled by concatenation: a slice assignment compiles numba's
+        # shape-error formatting (seconds from an empty cache)
+        cand = np.concatenate((cand, cand))
     cand[ncand, 0] = b
     cand[ncand, 1] = m0
     cand[ncand, 2] = m1
