@@ -152,7 +152,7 @@ class MLGCalculator(Calculator):
             self._ranks = self._ranks or RankEngine(self.potential, self.skin, self.grid_kwargs,
                                                     "auto" if self.auto else self._width)
             res = self._ranks.calculate(atoms, **want)
-            self.atoms = atoms.copy()
+            self.atoms = self._stored = stored_atoms(self._stored, atoms)  # no copy a call
         else:
             res = self._calculate_here(atoms, want)
         self.results.update(energy=res["energy"], free_energy=res["energy"],

@@ -126,7 +126,7 @@ class RankEngine:
         self.halo = self.partition = None
         self.counts = dict.fromkeys(("rebuilds", "migrated", "ghosts", "owned"), 0)
         self.timings = dict.fromkeys(("halo", "check", "rebuild", "list", "kernel"), 0.0)
-        self._key = self._buffer = self._shift = None
+        self._key = self._buffer = self._shift = self._local_numbers = None
 
     @staticmethod
     def union(comm, changes):
@@ -184,15 +184,16 @@ class RankEngine:
         mean = total[0] / max(total[1], 1.0)
         return deg / mean + 1.0 if mean > 0 else None
 
-    def _numbers(self, atoms):
-        return np.concatenate([atoms.numbers, self.halo.ghost_numbers])
 
     def _build(self, atoms):
         """Partition, migration, ghosts, the local list of this rank's pairs."""
         local = self._rebuild(atoms)
         t0 = time.perf_counter()
         halo, vl = self.halo, self.vl
-        vl.rebuild(local, atoms.cell.array, halo.pbc, self._numbers(atoms))
+        # the local atoms' numbers, fixed until the next build (a change of
+        # numbers is a rebuild): not concatenated again every step
+        self._local_numbers = np.concatenate([atoms.numbers, halo.ghost_numbers])
+        vl.rebuild(local, atoms.cell.array, halo.pbc, self._local_numbers)
         pl = vl.pairs
         index = np.concatenate([atoms.indices, halo.ghost_indices])[pl.order]
         image = np.ascontiguousarray(np.concatenate([halo.own_images, halo.ghost_images])[pl.order])
@@ -216,7 +217,7 @@ class RankEngine:
                                                           atoms.cell.array))
             t1 = time.perf_counter()
             X, rebuild = agree(comm, self.vl.kept, local, atoms.cell.array, self.halo.pbc,
-                               self._numbers(atoms), vote=lambda x: x is None)
+                               self._local_numbers, vote=lambda x: x is None)
             self.timings["halo"] += t1 - t0
             self.timings["check"] += time.perf_counter() - t1
         if rebuild:
