@@ -248,7 +248,7 @@ def row_chunks(rowptr, nbr, nthreads=None):
     return chunks
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def local_rank(r, lo, n):
     """Index of rank ``r`` in the cyclic window starting at rank ``lo``."""
     x = r - lo

@@ -81,7 +81,7 @@ def _select(perm, a0, a1, target, g, axis):
 
 # inlined: as a call (12 array arguments, 2 per site) it cost 18% of the
 # serial build
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def _split(g, perm, sites, coords, ny, nz, b, f, method, out_b, out_f, k):
     """One step of the recursive split (see module docstring) on the box
     ``b`` (site box: 6 ints, atom range perm[b[6]:b[7]]) with bounds ``f``

@@ -48,7 +48,7 @@ Orientation = namedtuple("Orientation", "offsets basis")
 _HALF, _FULL, _ORIENTED = 0, 1, 2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def ase_vector(pos, j, i, S0, S1, S2, cell):
     """``D = pos[j] - pos[i] + S @ cell`` (Å), in ASE's operation order, so
     that distances agree with ``ase.neighborlist`` to the last bit."""
@@ -302,7 +302,7 @@ _NO_REF = np.zeros((0, 3))
 _EYE = np.eye(3)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def pair_vector(X, svec, t, u, k):
     """``D = X[u] - X[t] + svec[k]`` of one list pair (Å), in ASE's
     operation order (``x[j] - x[i] + S @ cell``)."""
@@ -360,7 +360,7 @@ def _count_full(lists, code, r0, r1, cnt):
                 cnt[u] += 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _pair_shift(shifts, images, k, t, u):
     """The cell shift ``S = m + images[u] - images[t]`` of a list pair."""
     return (shifts[k, 0] + images[u, 0] - images[t, 0],
@@ -368,7 +368,7 @@ def _pair_shift(shifts, images, k, t, u):
             shifts[k, 2] + images[u, 2] - images[t, 2])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _oriented(offsets, basis, a, j, S0, S1, S2):
     """Which entries of the pair (a, j, S) an oriented half keeps:
     ``(a, j, S)`` itself when ``n = (S + offsets[a] - offsets[j]) @ basis``
@@ -434,7 +434,7 @@ def _atom_totals(cnt, order, r0, r1, tot):
         tot[order[t] + 1] = s
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def put_pair(out, q, i, j, d, Dx, Dy, Dz, S0, S1, S2):
     """Entry ``q`` of the output: ``(i, j, d, D, S)``, the wanted ones
     (also the writer of :mod:`ase_mlg.allpairs`)."""

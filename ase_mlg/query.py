@@ -110,7 +110,7 @@ _Room = namedtuple("_Room", "nbr start cap rowcount")
 # the scan
 # --------------------------------------------------------------------------
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _search(arr, col, base, n, q, right):
     """First index t in [0, n) with ``arr[base + t, col] >= q``, or
     ``> q`` when ``right`` (numpy's ``searchsorted`` sides); n if none."""
@@ -126,7 +126,7 @@ def _search(arr, col, base, n, q, right):
     return lo
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _overlap(box, base, n, qlo, qhi, a):
     """First and last of the ``n`` boxes from row ``base`` that can meet
     [qlo, qhi] along axis ``a``, along which their lows and highs are both
@@ -135,7 +135,7 @@ def _overlap(box, base, n, qlo, qhi, a):
             _search(box, a, base, n, qhi[a], True) - 1)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _apart(box, r, qlo, qhi, a, b):
     """Box ``r`` (lows at columns 0-2, highs at 3-5) misses the query box
     [qlo, qhi] on axis ``a`` or ``b`` (the third axis was bisected)."""
@@ -251,7 +251,7 @@ def _prepare(A, blocks, reach, cand, cf, qlo, qhi):
     if periods[2] > 0.0:
         mlo2 = int(np.ceil((BB[A, 2] - RA - glob[5]) / periods[2]))
         mhi2 = int(np.floor((BB[A, 5] + RA - glob[2]) / periods[2]))
-    ncand = 0
+    ncand = np.int64(0)  # not Literal[int](0), which compiles the callee twice
     for m0 in range(mlo0, mhi0 + 1):
         for m1 in range(mlo1, mhi1 + 1):
             for m2 in range(mlo2, mhi2 + 1):

@@ -33,7 +33,7 @@ __all__ = ["sweep", "is_monotone", "take_positions", "follow"]
 
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _swap_sites(sites, coords, s, u):
     """Exchange everything stored at sites s and u (Boris's swap)."""
     a = sites[s]
@@ -45,7 +45,7 @@ def _swap_sites(sites, coords, s, u):
         coords[u, c] = x
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _flag_offsets(nx, ny, nz):
     """Where the line flags of axes 1 and 2 start in ``act`` (axis 0's at
     0): one flag per line, ``ny*nz`` lines along axis 0, ``nx*nz`` along 1."""
@@ -53,7 +53,7 @@ def _flag_offsets(nx, ny, nz):
     return off1, off1 + nx * nz
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _row(o, ny, nz):
     """``(i, j, first site)`` of row ``o = i*ny + j``, the line of sites
     ``(i, j, 0 .. nz-1)`` along axis 2."""
@@ -163,7 +163,7 @@ def _mark_disorder(coords, nx, ny, nz, periods, act):
                     act[j * nz + k] = 1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _out_of_order(coords, s, c, idx, n, stride, first, period):
     """Whether site ``s``, number ``idx`` of the ``n`` sites of its line
     along axis ``c`` (neighbours ``stride`` sites apart, the line's first

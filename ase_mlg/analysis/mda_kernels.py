@@ -57,7 +57,7 @@ _FLT_EPSILON = np.float32(np.finfo(np.float32).eps)
 _FLT_MAX = float(np.finfo(np.float32).max)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _c_round(s):
     """C ``round``: half away from zero (``np.round`` rounds half to even)."""
     t = np.trunc(s)
@@ -69,7 +69,7 @@ def _c_round(s):
     return t
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _mda_d2(W, a, b, kind, box, half, inv):
     """Squared distance (Å^2) of atoms a, b as MDAnalysis's C kernels
     compute it.
@@ -131,7 +131,7 @@ def _mda_d2(W, a, b, kind, box, half, inv):
     return dx0 * dx0 + dx1 * dx1 + dx2 * dx2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _kept_distance(d2, nsgrid, cut, cut2):
     """The distance sqrt(d2) (Å) if ``capped_distance`` keeps the pair,
     else -1.0: its grid search (FastNS) keeps ``d2 <= cut**2``, brute force
@@ -145,7 +145,7 @@ def _kept_distance(d2, nsgrid, cut, cut2):
     return d
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _np_histogram_bin(x, first, last, denom, nb, edges):
     """The bin ``np.histogram(..., bins=nb, range=(first, last))`` puts x
     in, or -1: numpy's uniform-bin fast path, step by step."""
@@ -161,7 +161,7 @@ def _np_histogram_bin(x, first, last, denom, nb, edges):
     return k
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _pair_weight(a, b, m1, m2, kp1, kk1, kc1, kp2, kk2, kc2, use_keys):
     """Ordered (position of a in g1, position of b in g2) pairs InterRDF
     counts for atoms a, b: m1[a] m2[b], less the excluded ones.  The keys

@@ -48,7 +48,7 @@ def n_chunks(npair):
     return reduction_chunks(npair, 8192)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def chunk_bounds(npair, c, nchunk):
     """Pairs ``lo:hi`` of chunk ``c`` of ``nchunk``: contiguous chunks whose
     sizes differ by at most one, each histogrammed by one thread."""

@@ -243,7 +243,7 @@ def no_fixed(n):
     return np.zeros(n, dtype=np.bool_)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _mix64(z):
     # splitmix64's finaliser (Steele, Lea and Flood 2014): a bijection of
     # 64-bit words whose outputs pass BigCrush for consecutive inputs

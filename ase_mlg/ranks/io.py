@@ -8,7 +8,6 @@ the serial run's file.  Every rank calls :meth:`Trajectory.write` (it is
 collective), as every rank calls the dynamics' observers.
 """
 
-from ase.io.trajectory import Trajectory as _ASETrajectory
 from ase.parallel import DummyMPI
 
 from .atoms import is_distributed
@@ -36,6 +35,8 @@ class Trajectory:
         self.atoms = atoms
         comm = atoms.comm if is_distributed(atoms) else None
         self.master = comm is None or comm.rank == 0
+        # imported here: ase.io costs a sixth of a second of every `import ase_mlg`
+        from ase.io.trajectory import Trajectory as _ASETrajectory
         self._writer = (_ASETrajectory(filename, mode, properties=properties,
                                        master=True, comm=DummyMPI())
                         if self.master else None)
