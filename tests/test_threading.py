@@ -38,11 +38,25 @@ CONCURRENT = textwrap.dedent("""
 
     def run(atoms, out, k):
         atoms.calc = ase_mlg.MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5))
-        f = []
+        f, used = [], 0
         for step in range(4):
             atoms.positions += 0.02
             f.append(atoms.get_forces().copy())
-        out[k] = (np.array(f), atoms.calc.stats["threads_used"])
+            used = max(used, atoms.calc.stats["threads_used"])
+        out[k] = (np.array(f), used)
+
+    def threads_seen(atoms, calls=50):
+        # a loaded machine (CI runs two test suites at once) can leave TBB's
+        # worker asleep through a short call: the most threads of many calls
+        atoms.calc = ase_mlg.MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5))
+        used = 0
+        for step in range(calls):
+            atoms.positions += 0.001
+            atoms.get_forces()
+            used = max(used, atoms.calc.stats["threads_used"])
+            if used == 2:
+                break
+        return used
 
     serial = {}
     for k in range(2):
@@ -57,7 +71,7 @@ CONCURRENT = textwrap.dedent("""
         assert np.array_equal(serial[k][0], together[k][0]), k
     c = ase_mlg.parallel.config()
     print("LAYER", c["threading_layer"], "SERIALISED", c["serialised"],
-          "USED", max(v[1] for v in serial.values()))
+          "USED", max(max(v[1] for v in serial.values()), threads_seen(system(3))))
 """)
 
 
