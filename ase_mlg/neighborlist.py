@@ -66,7 +66,7 @@ from scipy import sparse as _sp
 
 from .allpairs import all_pairs
 from .blocks import BlockIndex
-from .geometry import Box, as_positions
+from .geometry import Box, as_positions, same
 from .grid import MLG
 from .query import CUT_RADII, CUT_SCALAR, CUT_TABLE, find_pairs
 from .verletlist import VerletList
@@ -349,17 +349,25 @@ class _MLGPrimitive:
     def _needs_build(self, pbc, cell, coordinates):
         if self.nupdates == 0:
             return True
-        pbc = np.broadcast_to(np.asarray(pbc, dtype=bool), (3,))
-        cell = np.asarray(cell, dtype=np.float64)
+        pbc = np.asarray(pbc, dtype=bool)
+        if pbc.shape != (3,):
+            pbc = np.broadcast_to(pbc, (3,))
         coordinates = np.asarray(coordinates, dtype=np.float64)
-        if (self.pbc != pbc).any() or (self.cell != cell).any():
+        # same(): a few numbers compared as lists, not numpy passes (an
+        # update with nothing moved is all overhead)
+        if not (same(pbc, self.pbc) and same(np.asarray(cell, dtype=np.float64), self.cell)):
             return True
         if coordinates.shape != self.coordinates.shape:
             return True
         if len(coordinates) == 0:
             return False
-        return bool(((self.coordinates - coordinates) ** 2).sum(1).max()
-                    > self.skin ** 2)
+        d = self.coordinates - coordinates
+        # every |d| < skin when every component is below skin / sqrt(3)
+        # (margin 1e-9 over the rounding of |d|^2): one pass, not four; else
+        # ASE's own test, to the bit
+        if np.abs(d).max() * 3.0 ** 0.5 < self.skin * (1.0 - 1e-9):
+            return False
+        return bool((d ** 2).sum(1).max() > self.skin ** 2)
 
     def update(self, pbc, cell, coordinates, numbers=None):
         """Make sure the list is up to date; True if it was rebuilt."""
@@ -565,18 +573,20 @@ class NeighborList:
         self.nl = primitive(cutoffs, skin, sorted,
                             self_interaction=self_interaction,
                             bothways=bothways)
-        self._checked = None  # (cell, pbc) last checked by Box
+        self._checked = None  # (cell, pbc, completed cell) last checked by Box
 
     def update(self, atoms):
         """Bring the list up to date with ``atoms``; True if it was rebuilt."""
         cell, pbc = atoms.cell.array, atoms.pbc
         last = self._checked
-        if last is None or not (np.array_equal(cell, last[0]) and np.array_equal(pbc, last[1])):
-            # ValueError on a zero-volume periodic cell; checked once per
-            # cell (it was 70% of an update with nothing moved)
+        if last is None or not (same(cell, last[0]) and same(pbc, last[1])):
+            # ValueError on a zero-volume periodic cell; checked, and the
+            # cell completed as ASE's get_cell(complete=True), once per cell
+            # (it was 70% of an update with nothing moved)
             Box(cell, pbc)
-            self._checked = (cell.copy(), pbc.copy())
-        return self.nl.update(pbc, atoms.get_cell(complete=True), atoms.positions)
+            last = self._checked = (cell.copy(), pbc.copy(),
+                                    atoms.get_cell(complete=True).array)
+        return self.nl.update(pbc, last[2], atoms.positions)
 
     def get_neighbors(self, a):
         """(indices, offsets) of the neighbours of atom ``a``."""

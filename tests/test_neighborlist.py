@@ -647,3 +647,22 @@ def test_update_checks_a_changed_cell_again():
     atoms.cell[2] = atoms.cell[0]
     with pytest.raises(ValueError, match="cell"):
         nl.update(atoms)
+
+
+@pytest.mark.parametrize("move", [
+    (1 - 1e-12, 0, 0), (1 + 1e-12, 0, 0),  # along an axis, either side of the skin
+    (3 ** -0.5 * (1 - 1e-9),) * 3, (3 ** -0.5 * (1 + 1e-9),) * 3,  # the diagonal
+    (3 ** -0.5,) * 3, (0.9, 0.3, 0.1), (0.5, -0.1, 0.1), (0.0, 0.0, 0.0)])
+def test_update_decides_as_ase_near_the_skin(move):
+    """The one-pass test of an update (every component below skin / sqrt(3))
+    decides every move as ASE's |d| > skin does, on both sides of the skin
+    and of the diagonal's bound; an in-place cell change rebuilds."""
+    atoms = bulk("Cu", "fcc", a=3.6, cubic=True).repeat(2)
+    kw = dict(skin=0.3, self_interaction=False, bothways=True)
+    ours, ref = nl.NeighborList([1.3] * len(atoms), **kw), ase_nl.NeighborList([1.3] * len(atoms), **kw)
+    assert ours.update(atoms) and ref.update(atoms)
+    atoms.positions[3] += 0.3 * np.array(move)
+    assert ours.update(atoms) == ref.update(atoms)
+    assert ours.nupdates == ref.nupdates
+    atoms.cell[0, 0] += 1e-9
+    assert ours.update(atoms) and ref.update(atoms)
