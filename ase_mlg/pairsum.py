@@ -284,7 +284,16 @@ def _pair_sum(pair, lst, code, pot, chunks, out):
         t1 = (piece + 1) * n // npiece
         if t1 <= t0:
             continue
-        s = np.searchsorted(seg, t0, side="right") - 1
+        # the last segment starting at or before t0, by bisection (numba's
+        # np.searchsorted compiles for 1.5 s from an empty cache)
+        left, right = 0, seg.shape[0]
+        while left < right:
+            mid = (left + right) >> 1
+            if seg[mid] <= t0:
+                left = mid + 1
+            else:
+                right = mid
+        s = left - 1
         for t in range(t0, t1):
             while seg[s + 1] <= t:
                 s += 1

@@ -131,8 +131,9 @@ def _overlap(box, base, n, qlo, qhi, a):
     """First and last of the ``n`` boxes from row ``base`` that can meet
     [qlo, qhi] along axis ``a``, along which their lows and highs are both
     monotone (docs/design.md §6): bisection on each."""
-    return (_search(box, 3 + a, base, n, qlo[a], False),
-            _search(box, a, base, n, qhi[a], True) - 1)
+    right = n >= 0  # True as a value: a literal compiles _search once per value
+    return (_search(box, 3 + a, base, n, qlo[a], not right),
+            _search(box, a, base, n, qhi[a], right) - 1)
 
 
 @njit(cache=True)
@@ -162,29 +163,31 @@ def _block_candidates(cand, qlo, qhi, nb, S1, R2, BB, m0, m1, m2, ncand,
     """Append every block ``b >= bmin`` whose box meets [qlo, qhi] (slab ->
     row -> block, each level by binary search on its monotone axis)."""
     nbx, nby, nbz = nb[0], nb[1], nb[2]
+    ax0 = bmin - bmin  # axes as values, not literals (see _overlap)
+    ax1, ax2 = ax0 + 1, ax0 + 2
     IA = bmin // (nby * nbz)
     JA = (bmin // nbz) % nby
     KA = bmin % nbz
-    I0, I1 = _overlap(S1, 0, nbx, qlo, qhi, 0)
+    I0, I1 = _overlap(S1, ax0, nbx, qlo, qhi, ax0)
     I0 = max(I0, IA)
     for I in range(I0, I1 + 1):
-        if _apart(S1, I, qlo, qhi, 1, 2):
+        if _apart(S1, I, qlo, qhi, ax1, ax2):
             continue
         rb = I * nby
-        J0, J1 = _overlap(R2, rb, nby, qlo, qhi, 1)
+        J0, J1 = _overlap(R2, rb, nby, qlo, qhi, ax1)
         if I == IA:
             J0 = max(J0, JA)
         for J in range(J0, J1 + 1):
             r = rb + J
-            if _apart(R2, r, qlo, qhi, 0, 2):
+            if _apart(R2, r, qlo, qhi, ax0, ax2):
                 continue
             bb = r * nbz
-            K0, K1 = _overlap(BB, bb, nbz, qlo, qhi, 2)
+            K0, K1 = _overlap(BB, bb, nbz, qlo, qhi, ax2)
             if I == IA and J == JA:
                 K0 = max(K0, KA)
             for K in range(K0, K1 + 1):
                 b = bb + K
-                if _apart(BB, b, qlo, qhi, 0, 1):
+                if _apart(BB, b, qlo, qhi, ax0, ax1):
                     continue
                 cand = _push(cand, ncand, b, m0, m1, m2)
                 ncand += 1
@@ -236,12 +239,7 @@ def _prepare(A, blocks, reach, cand, cf, qlo, qhi):
             RA = rat[a]
     RA += pad
     # image ranges on periodic axes
-    mlo0 = 0
-    mhi0 = 0
-    mlo1 = 0
-    mhi1 = 0
-    mlo2 = 0
-    mhi2 = 0
+    mlo0 = mhi0 = mlo1 = mhi1 = mlo2 = mhi2 = 0
     if periods[0] > 0.0:
         mlo0 = int(np.ceil((BB[A, 0] - RA - glob[3]) / periods[0]))
         mhi0 = int(np.floor((BB[A, 3] + RA - glob[0]) / periods[0]))
