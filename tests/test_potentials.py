@@ -453,7 +453,11 @@ def test_built_in_kernels_are_cached_user_kernels_compiled_once():
 
 
 def test_kernel_is_loaded_from_cache_in_a_new_process():
-    code = ('from ase_mlg import pairsum, potentials as P; P.LennardJones(); '
+    # a sum over an empty list runs the serial kernel: loaded, not compiled
+    code = ('import numpy as np; from ase_mlg import pairsum, potentials as P; '
+            'P.LennardJones().sum_pairs(np.zeros((0, 3)), np.zeros(0, np.int32), '
+            'np.zeros(1, np.int64), np.zeros(0, np.int32), np.zeros(0, np.uint8), '
+            'np.zeros((1, 3)), np.zeros(0, np.int64)); '
             'k = pairsum.pair_kernel(P.lennard_jones_shifted_r2, False); '
             'print(sum(k.stats.cache_hits.values()))')
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
