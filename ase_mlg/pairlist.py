@@ -86,6 +86,7 @@ class PairList:
 
     def __init__(self, order, rowptr, nbr, code, shifts, images, zero_code):
         self.chunk_counts = None  # pairs per scan chunk (sizes the next build)
+        self._by_atom = None  # (rank, images) in atom order: the gather's
         self.order = order
         self.images = images
         self.rowptr = rowptr
@@ -116,7 +117,7 @@ class PairList:
     def gather_check(self, positions, cell, ref=None, M=None):
         """``(X, umax)``: :meth:`positions`, and in the same pass the
         largest displacement beyond the affine cell map ``M`` since ``ref``
-        (this list's ``X`` when it was built), Å; NaN if any
+        (the positions in atom order when the list was built), Å; NaN if any
         position is NaN; 0 without ``ref``.  The gather and the
         list-validity test share one pass over the positions (a force call
         makes others: docs/design.md §6)."""
@@ -125,13 +126,20 @@ class PairList:
         cell = np.ascontiguousarray(cell, dtype=np.float64)
         if ref is None:
             ref, M = _NO_REF, _EYE
+        if self._by_atom is None:  # each atom's rank and image, atom order
+            rank = np.empty(n, np.int64)
+            rank[self.order] = np.arange(n)
+            images = np.empty((n, 3), np.int64)
+            images[self.order] = self.images
+            self._by_atom = (rank, images)
+        rank, images = self._by_atom
         if use_threads("atoms", n):
             worst = np.empty(4 * threads_for("atoms", n))
             with dynamic_schedule():
-                _gather_threaded(positions, self.order, self.images, cell, ref, M, X, worst)
+                _gather_threaded(positions, rank, images, cell, ref, M, X, worst)
         else:
             worst = np.empty(1)
-            _gather_serial(positions, self.order, self.images, cell, ref, M, X, worst)
+            _gather_serial(positions, rank, images, cell, ref, M, X, worst)
         if len(worst) == 1:  # the serial gather: one number, no numpy passes
             w = float(worst[0])
             return X, (w if w != w else max(w, 0.0))
@@ -264,31 +272,33 @@ def _orientation(orient, n):
     return Orientation(offsets, np.ascontiguousarray(basis, dtype=np.int64))
 
 
-def _gather_rows(positions, order, images, cell, ref, M, X, worst):
-    """Gather ``X[t] = x[order[t]] + images[t] @ cell`` and, when ``ref``
-    has rows, how far each atom moved beyond the affine map ``M`` of the
-    cell since ``ref`` (the ``X`` of then: the images are the list's, and
-    ``images @ cell_then @ M = images @ cell``; ``M`` the identity in
-    NVE): ``worst``
-    gets the largest displacement of each of its chunks of rows (Å), NaN
-    if any is NaN.  A max does not depend on the chunking."""
-    n = order.shape[0]
+def _gather_atoms(positions, rank, images, cell, ref, M, X, worst):
+    """Write ``X[rank[a]] = x[a] + images[a] @ cell`` (``images`` in atom
+    order) and, when ``ref`` has rows, find how far each atom moved beyond
+    the affine map ``M`` of the cell since ``ref`` (its positions then, atom
+    order: ``x - ref @ M``; the list's images cancel, ``M`` is the identity
+    in NVE): ``worst`` gets the largest displacement of each of its chunks
+    of atoms (Å), NaN if any is NaN.  A max does not depend on the chunking.
+    The pass reads in atom order and scatters the writes: atoms in a random
+    order (an ASE system after a long liquid run) made a gather in row
+    order wait on memory, 39 against 6 ns an atom at 10^6 atoms."""
+    n = rank.shape[0]
     nchunk = worst.shape[0]
     check = ref.shape[0] > 0
     for ch in prange(nchunk):
         w = 0.0
-        for t in range(ch * n // nchunk, (ch + 1) * n // nchunk):
-            a = order[t]
-            m0 = images[t, 0]
-            m1 = images[t, 1]
-            m2 = images[t, 2]
+        for a in range(ch * n // nchunk, (ch + 1) * n // nchunk):
+            t = rank[a]
+            m0 = images[a, 0]
+            m1 = images[a, 1]
+            m2 = images[a, 2]
             s = 0.0
             for c in range(3):
-                x = positions[a, c] + (m0 * cell[0, c] + m1 * cell[1, c] + m2 * cell[2, c])
-                X[t, c] = x
+                x = positions[a, c]
+                X[t, c] = x + (m0 * cell[0, c] + m1 * cell[1, c] + m2 * cell[2, c])
                 if check:
-                    d = x - (ref[t, 0] * M[0, c] + ref[t, 1] * M[1, c]
-                             + ref[t, 2] * M[2, c])
+                    d = x - (ref[a, 0] * M[0, c] + ref[a, 1] * M[1, c]
+                             + ref[a, 2] * M[2, c])
                     s += d * d
             if s > w:
                 w = s
@@ -297,7 +307,7 @@ def _gather_rows(positions, order, images, cell, ref, M, X, worst):
         worst[ch] = np.sqrt(w)
 
 
-_gather_serial, _gather_threaded = serial_and_parallel(_gather_rows)
+_gather_serial, _gather_threaded = serial_and_parallel(_gather_atoms)
 _NO_REF = np.zeros((0, 3))
 _EYE = np.eye(3)
 

@@ -339,7 +339,8 @@ class VerletList:
         after): only for lists that :meth:`update` keeps (the neighbour
         lists and the RDFs read :meth:`arrays`).  They are the validity
         test's reference too (never written: each call gathers anew)."""
-        self.X = self._ref = self.pairs.positions(positions, cell)
+        self.X = self.pairs.positions(positions, cell)
+        self._ref = np.array(positions, dtype=np.float64, order="C")  # atom order
         self.svec = shift_vectors(self.pairs.shifts, cell)
 
     # -- reading it -----------------------------------------------------------

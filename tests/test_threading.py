@@ -97,10 +97,12 @@ def test_tbb_loads_and_a_threaded_kernel_runs_on_two_threads():
         atoms.rattle(0.1, seed=1)
         atoms.calc = ase_mlg.MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5))
         used = 0
-        for step in range(10):
-            atoms.positions += 0.01
+        for step in range(50):  # until seen: a loaded machine can leave a worker asleep
+            atoms.positions += 0.01 if step < 10 else 1e-4
             atoms.get_forces()
             used = max(used, atoms.calc.stats["threads_used"])
+            if step >= 9 and used == 2:
+                break
         print("LAYER", c["threading_layer"], "PROBLEM", c["problem"],
               "PROBE", c["probe_threads"], "USED", used, "CHUNKS", atoms.calc.verlet_list.chunks().nchunk)
     """)
