@@ -20,6 +20,9 @@ import numba
 import numpy as np
 import pytest
 
+# they assert that kernels ran on several threads: idle cores needed
+pytestmark = pytest.mark.threads
+
 # 6,912 argon atoms at liquid density (rc + skin = 9.5 Å: 3 x 10^5 list
 # pairs): above parallel.THRESHOLDS for "atoms" and "pairs", so the list
 # build, the gather and the pair sum all run their threaded paths
