@@ -337,8 +337,9 @@ class VerletList:
         """The kernel's positions and shift vectors at the build, through
         the per-call gather (compiled or loaded here, not in the first call
         after): only for lists that :meth:`update` keeps (the neighbour
-        lists and the RDFs read :meth:`arrays`).  They are the validity
-        test's reference too (never written: each call gathers anew)."""
+        lists and the RDFs read :meth:`arrays`).  The validity test's
+        reference is a copy of ``positions`` (atom order: the gather reads
+        in atom order)."""
         self.X = self.pairs.positions(positions, cell)
         self._ref = np.array(positions, dtype=np.float64, order="C")  # atom order
         self.svec = shift_vectors(self.pairs.shifts, cell)
