@@ -63,7 +63,7 @@ from numba import njit
 from .geometry import Box, as_pbc
 from .pairlist import PairOutput, ase_vector, put_pair
 
-__all__ = ["all_pairs", "MAX_WORK"]
+__all__ = ["all_pairs", "half_pairs", "MAX_WORK"]
 
 #: Above this many tested images (atom pairs ``n (n + 1) / 2`` times the
 #: images a pair spans, ``prod(2 rc / h_a + 1)`` over periodic axes:
@@ -230,24 +230,18 @@ def _grow(store):
 
 
 @njit(cache=True)
-def _all_pairs(pos, cell, pbc, mode, cut, radii, types, table, self_interaction,
-               want, max_work):
-    """Every pair within the cutoff at both atoms, ordered by (i, j, S).
-
-    ``want``: bits 1, 2, 4, 8 for j, d, D, S.  Returns ``(status, i, j, d,
-    D, S)``; status ``_NEEDS_BOX`` (the cell is Box's to complete or
-    refuse) or ``_NOT_MINE`` (the large path's) with empty arrays."""
+def _half(pos, cell, pbc, mode, cut, radii, types, table, self_interaction, max_work):
+    """The half list, each pair ``i <= j`` once, in (i, j, S) order:
+    ``(status, frame, store, m)``, rows ``store[:m]`` = (i, j, S) (a
+    Python entry point too: :func:`half_pairs`); status
+    ``_NEEDS_BOX`` (the cell is Box's to complete or refuse) or
+    ``_NOT_MINE`` (the large path's) with ``m = 0``."""
     n = pos.shape[0]
-    # every array is np.empty of one of four kinds (1-D/2-D, int64/float64):
-    # each other numpy call would be one more implementation to compile.
-    # No constant is passed to a kernel: numba compiles a callee once more
-    # for each literal argument (measured: 0.7 s of a cold start)
     none = n - n
-    empty = (np.empty(none, np.int64), np.empty(none, np.int64), np.empty(none, np.float64),
-             np.empty((none, 3), np.float64), np.empty((none, 3), np.int64))
     frame = np.empty((10, 3), np.float64)
+    idx = np.empty((16 * n + 64, 5), np.int64)
     if not _frame(cell, pbc, frame):
-        return (_NEEDS_BOX,) + empty
+        return _NEEDS_BOX, frame, idx, none
     rcmax = cut
     if mode == 1:
         for k in range(n):
@@ -273,15 +267,13 @@ def _all_pairs(pos, cell, pbc, mode, cut, radii, types, table, self_interaction,
             far |= pbc[a] and not abs(f[k, a]) <= _FAR_CELLS
     if (far or scale > 1e8 * max(rcmax, 1.0) or not images < 1e6
             or not 0.5 * n * (n + 1) * images <= max_work or not frame[9, 0] < 1e-12):
-        return (_NOT_MINE,) + empty
+        return _NOT_MINE, frame, idx, none
     # round-off pads every shift interval (fractions of a cell): the
     # coordinates' own (relative 1e-9, as the block query pads) and the
     # inverse's, which grows with the shift
     for a in range(3):
         frame[7, a] = (1e-9 * (scale + rcmax) * frame[6, a] + 8.0 * max(frame[9, 0], 1e-16)
                        * (2.0 * _FAR_CELLS + rcmax * frame[6, a] + 2.0))
-    # -- the half list, each pair i <= j once, in (i, j, S) order
-    idx = np.empty((16 * n + 64, 5), np.int64)
     m, i = none, none
     while True:
         m, i = _half_pairs(pos, frame, f, pbc, (mode, cut, radii, types, table),
@@ -289,6 +281,29 @@ def _all_pairs(pos, cell, pbc, mode, cut, radii, types, table, self_interaction,
         if i == n:
             break
         idx = _grow(idx)
+    return _DONE, frame, idx, m
+
+
+@njit(cache=True)
+def _all_pairs(pos, cell, pbc, mode, cut, radii, types, table, self_interaction,
+               want, max_work):
+    """Every pair within the cutoff at both atoms, ordered by (i, j, S).
+
+    ``want``: bits 1, 2, 4, 8 for j, d, D, S.  Returns ``(status, i, j, d,
+    D, S)``; status ``_NEEDS_BOX`` or ``_NOT_MINE`` (see :func:`_half`)
+    with empty arrays."""
+    n = pos.shape[0]
+    # every array is np.empty of one of four kinds (1-D/2-D, int64/float64):
+    # each other numpy call would be one more implementation to compile.
+    # No constant is passed to a kernel: numba compiles a callee once more
+    # for each literal argument (measured: 0.7 s of a cold start)
+    none = n - n
+    status, frame, idx, m = _half(pos, cell, pbc, mode, cut, radii, types, table,
+                                  self_interaction, max_work)
+    if status != _DONE:
+        return (status, np.empty(none, np.int64), np.empty(none, np.int64),
+                np.empty(none, np.float64), np.empty((none, 3), np.float64),
+                np.empty((none, 3), np.int64))
     # -- the full list: each pair at i, its mirror at j
     cur = np.empty(n + 1, np.int64)
     for a in range(n + 1):
@@ -370,29 +385,71 @@ def all_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False,
         :class:`~ase_mlg.geometry.Box`'s: the errors the large path raises
         first on the same input.
     """
-    # one type per argument, so that one compiled kernel serves every call
+    args = _arguments(cell, pbc, pair_cutoff, self_interaction)
+    if args is None:
+        return None
+    want = (("j" in quantities) | ("d" in quantities) << 1 | ("D" in quantities) << 2
+            | ("S" in quantities) << 3)
+    res = _call(_all_pairs, positions, args, (want, float(max_work)))
+    if res is None:
+        return None
+    i, j, d, D, S = res
+    return {"i": i, "j": j, "d": d, "D": D, "S": S}
+
+
+def half_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False, max_work=MAX_WORK):
+    """The half list of a small system: each pair within the cutoff once,
+    as ``(i, j, S)`` with ``i <= j`` and ``S`` lexicographically >= 0 where
+    ``i == j`` (int64 arrays, ordered by (i, j, S);
+    ``D = x[j] - x[i] + S @ cell``), or None where the large path must
+    answer.  Parameters, pairs and errors are those of :func:`all_pairs`:
+    its full list is this one and every pair's mirror.  The Verlet list's
+    builds at small sizes (:class:`~ase_mlg.verletlist.VerletList`)."""
+    args = _arguments(cell, pbc, pair_cutoff, self_interaction)
+    if args is None:
+        return None
+    res = _call(_half, positions, args, (float(max_work),))
+    if res is None:
+        return None
+    _, store, m = res
+    i, j, S = store[:m, 0], store[:m, 1], store[:m, 2:]
+    # an atom's pairs with its own images come as S and -S: keep one, the
+    # lexicographically positive (and S = 0, the self-interaction)
+    keep = (i != j) | (S[:, 0] > 0) | ((S[:, 0] == 0) & ((S[:, 1] > 0) | (
+        (S[:, 1] == 0) & (S[:, 2] >= 0))))
+    if keep.all():
+        return i, j, S
+    return i[keep], j[keep], S[keep]
+
+
+def _arguments(cell, pbc, pair_cutoff, self_interaction):
+    """The kernels' arguments after ``positions``, one type each (so that
+    one compiled kernel serves every call): ``(cell, pbc, the rest)``, or
+    None for a cell the kernels do not take."""
     if not (type(pbc) is np.ndarray and pbc.dtype == np.bool_ and pbc.shape == (3,)
             and pbc.flags.c_contiguous):
         pbc = as_pbc(pbc)
     if cell.shape != (3, 3) or cell.dtype != np.float64:
         return None
-    cell = np.ascontiguousarray(cell)
     mode, cut, radii, types, table = pair_cutoff
-    want = (("j" in quantities) | ("d" in quantities) << 1 | ("D" in quantities) << 2
-            | ("S" in quantities) << 3)
-    args = (int(mode), float(cut),
-            _EMPTY_F if radii is None else np.ascontiguousarray(radii, np.float64),
-            _EMPTY_I if types is None else np.ascontiguousarray(types, np.int64),
-            _EMPTY_TABLE if table is None else np.ascontiguousarray(table, np.float64),
-            bool(self_interaction), want, float(max_work))
-    status, i, j, d, D, S = _all_pairs(positions, cell, pbc, *args)
+    return np.ascontiguousarray(cell), pbc, (
+        int(mode), float(cut),
+        _EMPTY_F if radii is None else np.ascontiguousarray(radii, np.float64),
+        _EMPTY_I if types is None else np.ascontiguousarray(types, np.int64),
+        _EMPTY_TABLE if table is None else np.ascontiguousarray(table, np.float64),
+        bool(self_interaction))
+
+
+def _call(kernel, positions, args, tail):
+    """``kernel``'s arrays, once more on Box's completed cell where the
+    kernel asks for it (Box completes a missing vector of an open axis, or
+    raises what the large path raises); None where the large path must
+    answer."""
+    cell, pbc, rest = args
+    status, *res = kernel(positions, cell, pbc, *rest, *tail)
     if status == _NEEDS_BOX:
-        # Box completes a missing vector of an open axis, or raises what
-        # the large path raises; a cell it completes is one the kernel takes
-        status, i, j, d, D, S = _all_pairs(positions, Box(cell, pbc).full, pbc, *args)
-    if status != _DONE:
-        return None
-    return {"i": i, "j": j, "d": d, "D": D, "S": S}
+        status, *res = kernel(positions, Box(cell, pbc).full, pbc, *rest, *tail)
+    return res if status == _DONE else None
 
 
 def work(n, cell, pbc, rc):

@@ -21,7 +21,7 @@ from .parallel import (dynamic_schedule, run_chunks, serial_and_parallel, thread
                        use_threads)
 
 __all__ = ["PairList", "ListArrays", "PairOutput", "Orientation", "pair_vector",
-           "ase_vector", "put_pair"]
+           "ase_vector", "put_pair", "shift_codes"]
 
 NGROUP = 8  # row groups of full lists: fixed, so the output never depends on threads
 
@@ -94,6 +94,29 @@ class PairList:
         self.code = code
         self.shifts = shifts
         self.zero_code = zero_code
+
+    @classmethod
+    def from_pairs(cls, order, images, i, j, S):
+        """The list of a half list of atom pairs ``(i, j, S)`` (each
+        unordered pair once, ``D = x[j] - x[i] + S @ cell``), rows in
+        ``order`` (the atom of each rank) with each rank kept in its
+        ``images``; each row keeps its pairs in the given order."""
+        n = len(order)
+        rank = np.empty(n, np.int64)
+        rank[order] = np.arange(n)
+        ri, rj = rank[i], rank[j]
+        m = np.asarray(S, np.int64) - images[rj] + images[ri]
+        slo = m.min(axis=0) if len(m) else np.zeros(3, np.int64)
+        shi = m.max(axis=0) if len(m) else np.zeros(3, np.int64)
+        slo, shi = np.minimum(slo, 0), np.maximum(shi, 0)
+        sdim, shifts, dtype = shift_codes(slo, shi)
+        mcode = ((m[:, 0] - slo[0]) * sdim[1] + m[:, 1] - slo[1]) * sdim[2] + m[:, 2] - slo[2]
+        zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
+        nbr = np.empty(len(ri), np.int32)
+        code = np.empty(len(ri), dtype)
+        rowptr = np.zeros(n + 1, np.int64)
+        _rows_from_pairs(ri, rj, mcode, n, nbr, code, rowptr)
+        return cls(order, rowptr, nbr, code, shifts, images, zero_code)
 
     def __len__(self):
         return int(self.rowptr[-1])
@@ -531,3 +554,28 @@ _E_F = np.empty(0)
 _E_2 = np.empty((0, 3))
 _E_2I = np.empty((0, 3), np.int64)
 _NO_ORIENT = Orientation(_E_2I, np.eye(3, dtype=np.int64))
+
+
+def shift_codes(slo, shi):
+    """Code table for integer shifts in the box [slo, shi]: dims, the
+    shift of every code, the code dtype (one byte when it fits)."""
+    sdim = (shi - slo + 1).astype(np.int64)
+    k = np.indices(sdim).reshape(3, -1).T
+    shifts = np.ascontiguousarray(k + slo, dtype=np.int64)
+    dtype = np.uint8 if len(shifts) <= 256 else np.int32
+    return sdim, shifts, dtype
+
+
+@njit(cache=True)
+def _rows_from_pairs(rank_i, rank_j, mcode, n, nbr, code, rowptr):
+    """Counting sort of a half list by row (stable)."""
+    for k in range(rank_i.shape[0]):
+        rowptr[rank_i[k] + 1] += 1
+    for t in range(n):
+        rowptr[t + 1] += rowptr[t]
+    cur = rowptr[:-1].copy()
+    for k in range(rank_i.shape[0]):
+        q = cur[rank_i[k]]
+        cur[rank_i[k]] = q + 1
+        nbr[q] = rank_j[k]
+        code[q] = mcode[k]

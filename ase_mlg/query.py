@@ -73,7 +73,7 @@ import numpy as np
 from numba import njit
 
 from .blocks import BlockIndex
-from .pairlist import PairList, ase_vector
+from .pairlist import PairList, ase_vector, shift_codes
 from .parallel import run_chunks, threads_for
 
 __all__ = ["half_list", "pair_list", "find_pairs", "exact_pairs", "CUT_SCALAR",
@@ -490,16 +490,6 @@ def _scan(b0, b1, blocks, reach, cutoff, fmt, room, out_c):
     return b1, total
 
 
-def _shift_codes(slo, shi):
-    """Code table for integer shifts in the box [slo, shi]: dims, the
-    shift of every code, the code dtype (one byte when it fits)."""
-    sdim = (shi - slo + 1).astype(np.int64)
-    k = np.indices(sdim).reshape(3, -1).T
-    shifts = np.ascontiguousarray(k + slo, dtype=np.int64)
-    dtype = np.uint8 if len(shifts) <= 256 else np.int32
-    return sdim, shifts, dtype
-
-
 def _image_bounds(index, rmax, pad):
     """Bounds of the image ``m`` over every pair the scan can keep: the
     image range of the global box (as in ``_prepare``)."""
@@ -583,7 +573,7 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
              else np.ascontiguousarray(types, dtype=np.int64))
     table = np.zeros((1, 1)) if table is None else np.ascontiguousarray(table, dtype=np.float64)
     if n == 0:
-        sdim, shifts, dtype = _shift_codes(np.zeros(3, np.int64), np.zeros(3, np.int64))
+        sdim, shifts, dtype = shift_codes(np.zeros(3, np.int64), np.zeros(3, np.int64))
         return PairList(np.zeros(0, np.int64), np.zeros(1, np.int64),
                         np.zeros(0, np.int32), np.zeros(0, dtype), shifts,
                         np.zeros((0, 3), np.int64), 0)
@@ -605,7 +595,7 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     ftol = 1e-9 * (index.scale + rmax)
     _refuse_far(index, rmax)
     slo, shi = _image_bounds(index, rmax, pad)
-    sdim, shifts, dtype = _shift_codes(slo, shi)
+    sdim, shifts, dtype = shift_codes(slo, shi)
     zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
     nblk = int(np.prod(index.nb))
     nth = threads_for("atoms", n)
@@ -708,43 +698,14 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     return pl
 
 
-@njit(cache=True)
-def _rows_from_pairs(rank_i, rank_j, mcode, n, nbr, code, rowptr):
-    """Counting sort of a half list by row (stable)."""
-    for k in range(rank_i.shape[0]):
-        rowptr[rank_i[k] + 1] += 1
-    for t in range(n):
-        rowptr[t + 1] += rowptr[t]
-    cur = rowptr[:-1].copy()
-    for k in range(rank_i.shape[0]):
-        q = cur[rank_i[k]]
-        cur[rank_i[k]] = q + 1
-        nbr[q] = rank_j[k]
-        code[q] = mcode[k]
-
-
 def pair_list(index, i, j, S):
     """A :class:`PairList` in the grid order of ``index`` from a half list
     of atom pairs with cell shifts S (e.g. Boris's template,
     :func:`ase_mlg.template.template_pairs`)."""
     n = index.grid.natoms
-    rank = np.empty(n, np.int64)
-    rank[index.order] = np.arange(n)
     images = (np.ascontiguousarray(index.MS[index.slot_atom >= 0]) if n
               else np.zeros((0, 3), np.int64))
-    ri, rj = rank[i], rank[j]
-    m = np.asarray(S, np.int64) - images[rj] + images[ri]
-    slo = m.min(axis=0) if len(m) else np.zeros(3, np.int64)
-    shi = m.max(axis=0) if len(m) else np.zeros(3, np.int64)
-    slo, shi = np.minimum(slo, 0), np.maximum(shi, 0)
-    sdim, shifts, dtype = _shift_codes(slo, shi)
-    mcode = ((m[:, 0] - slo[0]) * sdim[1] + m[:, 1] - slo[1]) * sdim[2] + m[:, 2] - slo[2]
-    zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
-    nbr = np.empty(len(ri), np.int32)
-    code = np.empty(len(ri), dtype)
-    rowptr = np.zeros(n + 1, np.int64)
-    _rows_from_pairs(ri, rj, mcode, n, nbr, code, rowptr)
-    return PairList(index.order, rowptr, nbr, code, shifts, images, zero_code)
+    return PairList.from_pairs(index.order, images, i, j, S)
 
 
 def find_pairs(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,

@@ -36,11 +36,13 @@ import time
 
 import numpy as np
 
+from .allpairs import half_pairs
 from .blocks import BlockIndex, block_for_radius
 from .geometry import same
 from .pairsum import shift_vectors
 from .chunks import row_chunks
-from .query import CUT_RADII, half_list, pair_list
+from .pairlist import PairList
+from .query import CUT_RADII, CUT_SCALAR, half_list, pair_list
 from .template import template_pairs
 from .tracker import GridTracker
 
@@ -287,31 +289,40 @@ class VerletList:
         template = self.template
         self.width = template(grid, numbers) if callable(template) else template
         n = grid.natoms
+        inner_first = False  # whether the rows hold the pairs within the cutoff first
         if self.radii is not None:
             rmax = float(self.radii.max()) if n else 0.0
             rat, hint = self.radii + rmax, None
         else:
             rat = np.full(n, self.rlist)
             hint = None if old is None or old.natoms != n else len(old) / max(n, 1)
-        index = BlockIndex(grid, block_for_radius(grid, float(rat.max(initial=0.0)))
-                           if self.block is None else self.block)
-        if self.width is not None:
-            i, j, S, _ = template_pairs(grid, self.width, self.rlist)
-            pl = pair_list(index, i, j, S)
-        elif self.radii is not None:
-            pl = half_list(index, rat, CUT_RADII, radii=self.radii,
-                           self_interaction=self.self_interaction, reuse=old)
-        else:
-            # pairs within the cutoff first in each row, straight from the
-            # scan, where the list holds others
-            split = None if self.rlist == self.cutoff else self.cutoff
-            pl = half_list(index, rat, cut=self.rlist, self_interaction=self.self_interaction,
-                           pairs_per_atom=hint, reuse=old, split=split)
-        del old, index
+        pl = None
+        if self.width is None and self.block is None:
+            pl = self._small_list(grid, cell, pbc)
+            inner_first = pl is not None
+        if pl is None:
+            index = BlockIndex(grid, block_for_radius(grid, float(rat.max(initial=0.0)))
+                               if self.block is None else self.block)
+            if self.width is not None:
+                i, j, S, _ = template_pairs(grid, self.width, self.rlist)
+                pl = pair_list(index, i, j, S)
+            elif self.radii is not None:
+                pl = half_list(index, rat, CUT_RADII, radii=self.radii,
+                               self_interaction=self.self_interaction, reuse=old)
+            else:
+                # pairs within the cutoff first in each row, straight from
+                # the scan, where the list holds others
+                split = None if self.rlist == self.cutoff else self.cutoff
+                pl = half_list(index, rat, cut=self.rlist,
+                               self_interaction=self.self_interaction,
+                               pairs_per_atom=hint, reuse=old, split=split)
+                inner_first = True
+            del index
+        del old
         self.pairs = pl
-        if self.width is not None and self.rlist != self.cutoff:
+        if not inner_first and self.radii is None and self.rlist != self.cutoff:
             self._gather(positions, cell)
-            pl.inner_first(self.X, self.svec, self.cutoff)  # the scan orders its own
+            pl.inner_first(self.X, self.svec, self.cutoff)
         if self._types_of is not None:
             self.types = np.ascontiguousarray(self._types_of(numbers)[pl.order])
         self._numbers = None if numbers is None else np.array(numbers, copy=True)
@@ -322,6 +333,30 @@ class VerletList:
         self._builds += 1
         self.timings["list_build"] += time.perf_counter() - t0
         return pl
+
+    def _small_list(self, grid, cell, pbc):
+        """The list of a small system, every atom pair tested
+        (:func:`ase_mlg.allpairs.half_pairs`: the exact query's pairs), in
+        the grid's site order, or None above its size.  Where the exact
+        query's set-up (the block index, the scan's room and codes) costs
+        more than the pairs, and on a first call its compilation (8 of a
+        256-atom force call's 11 s), this path answers in one kernel."""
+        cut = ((CUT_RADII, 0.0, self.radii, None, None) if self.radii is not None
+               else (CUT_SCALAR, self.rlist, None, None, None))
+        x = grid.positions
+        pairs = half_pairs(x, cell, pbc, cut, self.self_interaction)
+        if pairs is None:
+            return None
+        i, j, S = pairs
+        if self.radii is None and self.rlist != self.cutoff:
+            # the pairs within the cutoff first in each row, as the scan
+            # writes them (the rows' sort below is stable)
+            D = x[j] - x[i] + S @ cell
+            first = np.argsort(np.einsum("ij,ij->i", D, D) > self.cutoff ** 2, kind="stable")
+            i, j, S = i[first], j[first], S[first]
+        sites = grid.sites.ravel()
+        order = np.ascontiguousarray(sites[sites >= 0], dtype=np.int64)
+        return PairList.from_pairs(order, np.zeros((len(order), 3), np.int64), i, j, S)
 
     def rebuild(self, positions, cell, pbc, numbers=None):
         """:meth:`build`, and the kernel's positions (:attr:`X`,

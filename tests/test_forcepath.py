@@ -332,6 +332,19 @@ def test_exact_list_rows_hold_pairs_within_the_cutoff_first():
     rlist = AR["rc"] + 1.0
     plain = half_list(BlockIndex(calc.grid, block_for_radius(calc.grid, rlist)),
                       np.full(pl.natoms, rlist), cut=rlist)
-    key = lambda p: np.sort(np.repeat(np.arange(p.natoms), np.diff(p.rowptr)) * 10**6
-                            + p.nbr.astype(np.int64) * 100 + p.code)
-    np.testing.assert_array_equal(key(pl), key(plain))
+    np.testing.assert_array_equal(atom_pairs(pl), atom_pairs(plain))
+
+
+def atom_pairs(pl):
+    """A half list's pairs as sorted rows (i, j, S) of atoms, each unordered
+    pair {(i, j, S), (j, i, -S)} written with i < j, or S > 0 for i == j:
+    the same for any rank order or orientation."""
+    t = np.repeat(np.arange(pl.natoms), np.diff(pl.rowptr))
+    u = pl.nbr.astype(np.int64)
+    i, j = pl.order[t], pl.order[u]
+    S = pl.shifts[pl.code] + pl.images[u] - pl.images[t]
+    flip = (i > j) | ((i == j) & (np.sign(S) @ [4, 2, 1] < 0))
+    i, j = np.where(flip, j, i), np.where(flip, i, j)
+    S = np.where(flip[:, None], -S, S)
+    rows = np.column_stack([i, j, S])
+    return rows[np.lexsort(rows.T[::-1])]
