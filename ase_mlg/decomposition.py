@@ -53,7 +53,7 @@ from .blocks import BlockIndex, block_for_radius
 from .query import half_list
 
 __all__ = ["Pairs", "Decomposition", "factor_mlg", "factor_lammps",
-           "mlg_decomposition", "spatial_decomposition"]
+           "mlg_decomposition", "balanced_decomposition", "spatial_decomposition"]
 
 
 @njit(cache=True)
@@ -153,6 +153,9 @@ class Decomposition:
         Pairs per rank, those across ranks counted half (module doc).
     work : float64 (P,) or None
         Owned weight per rank (MLG partitions).
+    alpha : float or None
+        The weight ``1 + alpha pairs / mean`` :func:`balanced_decomposition`
+        chose (None otherwise).
     seconds : float
         Time to compute the owners (not the list, not the counts), s.
     """
@@ -163,6 +166,7 @@ class Decomposition:
         self.owner = owner
         self.site_owner = site_owner
         self.work = work
+        self.alpha = None  # the weight balanced_decomposition chose
         self.seconds = seconds
         self.natoms = np.bincount(owner, minlength=nranks).astype(np.int64)
         self.pairs = 0.5 * np.bincount(owner, weights=pairs.degree, minlength=nranks)
@@ -240,27 +244,34 @@ def factor_mlg(shape, spacing, nranks, reach):
     factorisations with ``P_a <= N_a`` if any."""
     shape = np.asarray(shape, np.int64)
     ext = shape * np.asarray(spacing, float)
-    r = float(reach)
     best, dims = np.inf, None
     fits = [f for f in _factorisations(nranks) if (np.asarray(f) <= shape).all()]
     for f in fits or _factorisations(nranks):
-        p = np.asarray(f)
-        cut = p > 1
-        e = ext[cut] / p[cut]
-        k = int(cut.sum())
-        if k == 0:
-            vol = 0.0
-        elif k == 1:
-            vol = 2 * r
-        elif k == 2:
-            vol = 2 * r * e.sum() + np.pi * r * r
-        else:
-            vol = (2 * r * (e[0] * e[1] + e[0] * e[2] + e[1] * e[2])
-                   + np.pi * r * r * e.sum() + 4 / 3 * np.pi * r ** 3)
-        vol *= float(np.prod(ext[~cut]))
+        vol = _reach_volume(ext, f, reach)
         if vol < best * (1 - 1e-12):
             best, dims = vol, f
     return dims
+
+
+def _reach_volume(ext, dims, reach):
+    """Volume within ``reach`` (Å) of a rank's block outside it: Steiner's
+    formula for a box of extents ``ext / dims`` on the cut axes (uncut
+    axes span the grid and only scale it)."""
+    r = float(reach)
+    p = np.asarray(dims)
+    cut = p > 1
+    e = ext[cut] / p[cut]
+    k = int(cut.sum())
+    if k == 0:
+        vol = 0.0
+    elif k == 1:
+        vol = 2 * r
+    elif k == 2:
+        vol = 2 * r * e.sum() + np.pi * r * r
+    else:
+        vol = (2 * r * (e[0] * e[1] + e[0] * e[2] + e[1] * e[2])
+               + np.pi * r * r * e.sum() + 4 / 3 * np.pi * r ** 3)
+    return vol * float(np.prod(ext[~cut]))
 
 
 def factor_lammps(lengths, nranks):
@@ -389,6 +400,55 @@ def mlg_decomposition(grid, nranks, pairs=None, reach=None, weight="work", dims=
     work = np.bincount(site_owner, weights=wsite, minlength=nranks)
     seconds = time.perf_counter() - t0
     return Decomposition((px, py, pz), owner, pairs, site_owner, work, seconds)
+
+
+#: The work weights :func:`balanced_decomposition` tries: ``1 + alpha *
+#: pairs / mean pairs`` (0: atoms alone; 1: the "work" weight).
+ALPHAS = (0.0, 0.25, 0.5, 1.0, 2.0)
+
+
+def balanced_decomposition(grid, nranks, pairs=None, reach=None, tol=1.05, candidates=6):
+    """The MLG partition that balances owned atoms and pairs together.
+
+    One run of sites cannot balance both where pairs per atom vary
+    (surfaces, vapour): each weight trades one against the other, and so
+    does the choice of the cut axes (a slab cut only across its surface
+    gives every rank the same mix).  So this tries the ``candidates``
+    factorisations of least volume within reach (:func:`factor_mlg`'s
+    measure) with each weight of :data:`ALPHAS`, and keeps, among those
+    whose owned atoms and pairs are both within ``tol`` of the mean
+    (max/mean), the one of least halo on its worst rank; where none is,
+    the one of least ``max(atoms, pairs)``.
+
+    Returns
+    -------
+    Decomposition
+        With ``alpha`` (the weight chosen) and ``seconds`` the whole search.
+    """
+    nranks = _check_ranks(nranks, int(np.prod(grid.shape)), grid.natoms)
+    if pairs is None:
+        pairs = Pairs(grid, reach)
+    t0 = time.perf_counter()
+    shape = np.asarray(grid.shape, np.int64)
+    ext = shape * _spacings(grid)
+    fits = [f for f in _factorisations(nranks) if (np.asarray(f) <= shape).all()]
+    fits.sort(key=lambda f: _reach_volume(ext, f, pairs.reach))
+    rows = 0.5 * pairs.degree.astype(np.float64)
+    mean = rows.mean() if len(rows) else 0.0
+    best = None
+    for dims in fits[:candidates]:
+        for alpha in ALPHAS:
+            w = 1.0 + alpha * rows / mean if mean > 0 else np.ones(len(rows))
+            dec = mlg_decomposition(grid, nranks, pairs, weight=w, dims=dims)
+            s = dec.imbalance()
+            worst = max(s["atoms"], s["pairs"])
+            key = (0, int(dec.halo.max()), worst) if worst <= tol else (1, worst, 0)
+            if best is None or key < best[0]:
+                dec.alpha = alpha
+                best = (key, dec)
+    dec = best[1]
+    dec.seconds = time.perf_counter() - t0
+    return dec
 
 
 def spatial_decomposition(grid, nranks, pairs=None, reach=None, dims=None):

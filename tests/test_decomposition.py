@@ -12,8 +12,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from ase_mlg import MLG
-from ase_mlg.decomposition import (Pairs, factor_lammps, factor_mlg,
-                                   mlg_decomposition, spatial_decomposition)
+from ase_mlg.decomposition import (ALPHAS, Pairs, balanced_decomposition, factor_lammps,
+                                   factor_mlg, mlg_decomposition, spatial_decomposition)
 from naive import pairs as naive_pairs
 
 REACH = 3.0  # Å: a few neighbours per atom in the systems below
@@ -148,6 +148,54 @@ def test_balance_reaches_the_target_where_achievable():
         for weight in ("atoms", "pairs"):
             stats = mlg_decomposition(grid, nranks, pr, weight=weight).imbalance()
             assert stats[weight] <= 1.05, (nranks, weight, stats)
+
+
+def _slab(n, seed):
+    """A liquid-vapour slab (Å): 90 % of the atoms packed in the middle
+    third of a cell three times as tall as wide, the rest spread above and
+    below (the liquid's atoms have many more pairs than the vapour's)."""
+    rng = np.random.default_rng(seed)
+    nliq = int(0.9 * n)
+    L = (8.0 * nliq) ** (1 / 3)
+    liq = rng.random((nliq, 3)) * L + [0, 0, L]
+    vap = rng.random((n - nliq, 3)) * [L, L, 2 * L]
+    vap[:, 2] = np.where(vap[:, 2] < L, vap[:, 2], vap[:, 2] + L)
+    return np.concatenate([liq, vap]), np.diag([L, L, 3 * L]), (True, True, True)
+
+
+def test_balanced_partition_balances_atoms_and_pairs_together():
+    """On a slab the "work" weight misses 1.05 on owned atoms at P = 8;
+    the balanced search (cut axes and weight chosen) meets it on atoms and
+    pairs at once, and keeps the least worst-rank halo of the candidates
+    that do."""
+    x, cell, pbc = _slab(4000, 2)
+    grid = MLG(x, cell, pbc)
+    pr = Pairs(grid, REACH)
+    work = mlg_decomposition(grid, 8, pr).imbalance()
+    assert max(work["atoms"], work["pairs"]) > 1.05, work
+    dec = balanced_decomposition(grid, 8, pr)
+    stats = dec.imbalance()
+    assert stats["atoms"] <= 1.05 and stats["pairs"] <= 1.05, stats
+    assert dec.alpha in ALPHAS
+    check_regions(_regions(dec), grid.shape, dec.dims)
+    # no other candidate within the tolerance has a smaller worst halo
+    rows = 0.5 * pr.degree
+    for dims in [(8, 1, 1), (4, 2, 1), (2, 2, 2), (1, 2, 4), (1, 1, 8)]:
+        for alpha in ALPHAS:
+            other = mlg_decomposition(grid, 8, pr, weight=1 + alpha * rows / rows.mean(),
+                                      dims=dims)
+            s = other.imbalance()
+            if max(s["atoms"], s["pairs"]) <= 1.05 and dims in [
+                    tuple(d) for d in _least_volume(grid, 8)]:
+                assert dec.halo.max() <= other.halo.max(), (dims, alpha)
+
+
+def _least_volume(grid, nranks):
+    """The six factorisations the balanced search tries (its candidates)."""
+    from ase_mlg.decomposition import _factorisations, _reach_volume, _spacings
+    ext = np.asarray(grid.shape) * _spacings(grid)
+    fits = [f for f in _factorisations(nranks) if (np.asarray(f) <= grid.shape).all()]
+    return sorted(fits, key=lambda f: _reach_volume(ext, f, REACH))[:6]
 
 
 def test_regions_of_a_uniform_lattice_are_face_connected():

@@ -37,7 +37,8 @@ import time
 import numpy as np
 
 from ase_mlg import MLG
-from ase_mlg.decomposition import Pairs, mlg_decomposition, spatial_decomposition
+from ase_mlg.decomposition import (Pairs, balanced_decomposition, mlg_decomposition,
+                                   spatial_decomposition)
 
 SIGMA = 3.405          # Å, argon
 A_LIQUID = (4 / 0.8) ** (1 / 3) * SIGMA  # fcc constant at rho* = 0.8, Å
@@ -109,6 +110,8 @@ def cpu_model():
 def row(name, n, nranks, label, dec):
     s = dec.imbalance()
     dims = "x".join(map(str, dec.dims))
+    if dec.alpha is not None:
+        label = f"{label} (alpha {dec.alpha:g})"
     return (f"| {name} | {n:,} | {nranks} | {label} | {dims} | {s['atoms']:.3f} | "
             f"{s['halo']:.3f} | {s['pairs']:.3f} | {s['row_pairs']:.3f} | "
             f"{s['empty']} | {1e3 * dec.seconds:.0f} |")
@@ -124,7 +127,8 @@ def run(name, n, ranks, out):
                f"{len(pairs):,} pairs; scene + MLG {t1 - t0:.1f} s, "
                f"half list + transpose {pairs.seconds:.1f} s -->")
     for nranks in ranks:
-        for label, make in (("MLG work", lambda: mlg_decomposition(grid, nranks, pairs)),
+        for label, make in (("MLG balanced", lambda: balanced_decomposition(grid, nranks, pairs)),
+                            ("MLG work", lambda: mlg_decomposition(grid, nranks, pairs)),
                             ("MLG pairs", lambda: mlg_decomposition(grid, nranks, pairs,
                                                                     weight="pairs")),
                             ("spatial", lambda: spatial_decomposition(grid, nranks, pairs))):
