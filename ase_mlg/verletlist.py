@@ -21,7 +21,10 @@ compare.
   the bound of :meth:`VerletList.update`, which covers strain and
   displacement together.
 * ``template=None`` lists come from the exact query (:mod:`ase_mlg.query`,
-  docs/design.md §6); ``template=W`` from Boris's W x W x W half template
+  docs/design.md §6), or below :data:`ase_mlg.allpairs.MAX_WORK` tested
+  images (a few hundred atoms; the default ``block`` only) from every atom
+  pair tested (:func:`ase_mlg.allpairs.half_pairs`: the same pairs);
+  ``template=W`` from Boris's W x W x W half template
   (:mod:`ase_mlg.template`, approximate, docs/design.md §7).
 
 The design, with the validity bound's proof, is docs/design.md §6, "The list

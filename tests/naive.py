@@ -218,3 +218,18 @@ def sweeps(sites, coords, shape, periods, cap):
         nswap += swaps
         if nsweep >= cap:
             return S.ravel(), C.reshape(-1, 3), nsweep, nswap
+
+
+def atom_pairs(pl):
+    """A half list's pairs as sorted rows (i, j, S) of atoms, each unordered
+    pair {(i, j, S), (j, i, -S)} written with i < j, or S > 0 for i == j:
+    the same for any rank order or orientation."""
+    t = np.repeat(np.arange(pl.natoms), np.diff(pl.rowptr))
+    u = pl.nbr.astype(np.int64)
+    i, j = pl.order[t], pl.order[u]
+    S = pl.shifts[pl.code] + pl.images[u] - pl.images[t]
+    flip = (i > j) | ((i == j) & (np.sign(S) @ [4, 2, 1] < 0))
+    i, j = np.where(flip, j, i), np.where(flip, i, j)
+    S = np.where(flip[:, None], -S, S)
+    rows = np.column_stack([i, j, S])
+    return rows[np.lexsort(rows.T[::-1])]

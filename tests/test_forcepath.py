@@ -20,6 +20,8 @@ from ase.md.verlet import VelocityVerlet
 from ase_mlg import MLGCalculator
 from ase_mlg.potentials import LennardJones, Morse, lennard_jones_mixture
 
+import naive
+
 AR = dict(sigma=3.405, epsilon=0.0104, rc=8.5)
 
 
@@ -105,7 +107,6 @@ def _calculator_list(atoms, pot, skin=1.0):
 def test_chunks_reproducible_and_agree_across_counts():
     """Every chunking of the calculator's list is ASE's answer (windowed
     buffers lose no pair), and the same chunks give the same bits."""
-    import naive
     from ase_mlg.chunks import RowChunks
     atoms = argon(5)
     pot = LennardJones(**AR)
@@ -332,19 +333,5 @@ def test_exact_list_rows_hold_pairs_within_the_cutoff_first():
     rlist = AR["rc"] + 1.0
     plain = half_list(BlockIndex(calc.grid, block_for_radius(calc.grid, rlist)),
                       np.full(pl.natoms, rlist), cut=rlist)
-    np.testing.assert_array_equal(atom_pairs(pl), atom_pairs(plain))
+    np.testing.assert_array_equal(naive.atom_pairs(pl), naive.atom_pairs(plain))
 
-
-def atom_pairs(pl):
-    """A half list's pairs as sorted rows (i, j, S) of atoms, each unordered
-    pair {(i, j, S), (j, i, -S)} written with i < j, or S > 0 for i == j:
-    the same for any rank order or orientation."""
-    t = np.repeat(np.arange(pl.natoms), np.diff(pl.rowptr))
-    u = pl.nbr.astype(np.int64)
-    i, j = pl.order[t], pl.order[u]
-    S = pl.shifts[pl.code] + pl.images[u] - pl.images[t]
-    flip = (i > j) | ((i == j) & (np.sign(S) @ [4, 2, 1] < 0))
-    i, j = np.where(flip, j, i), np.where(flip, i, j)
-    S = np.where(flip[:, None], -S, S)
-    rows = np.column_stack([i, j, S])
-    return rows[np.lexsort(rows.T[::-1])]

@@ -23,6 +23,7 @@ import ase.neighborlist as ase_nl
 from ase.build import bulk, molecule
 
 import ase_mlg
+import naive
 from ase_mlg import allpairs
 from ase_mlg import neighborlist as nl
 from ase_mlg.query import CUT_SCALAR
@@ -314,3 +315,49 @@ def test_cutoff_kinds_use_the_pair_rule():
     s = nl.primitive_neighbor_list("ij", atoms.pbc, atoms.cell.array, atoms.positions, 3.0)
     assert np.array_equal(r[0], s[0]) and np.array_equal(r[1], s[1])
     assert CUT_SCALAR == 0
+
+
+# (name, atoms, scalar cutoff or per-atom radii, self_interaction)
+LIST_SCENES = [
+    ("Cu primitive, rc 11 A: an atom and its own images", bulk("Cu", "fcc", a=3.61), 11.0,
+     False),
+    ("Cu primitive, self_interaction", bulk("Cu", "fcc", a=3.61), 5.0, True),
+    ("C60, no cell, radii", molecule("C60"), np.full(60, 0.8), False),
+    ("mixed pbc (1, 0, 1), triclinic", _triclinic(pbc=(True, False, True)), 3.0, False),
+    ("triclinic, cutoff beyond the cell", _triclinic(), 6.5, False),
+    ("slab, no z vector", _slab_without_z_vector(), 4.0, False),
+    ("Cu, 108 atoms", _rattled(bulk("Cu", "fcc", a=3.61, cubic=True) * 3), 5.0, False),
+]
+
+
+@pytest.mark.parametrize("name,atoms,cutoff,self_interaction", LIST_SCENES,
+                         ids=[s[0] for s in LIST_SCENES])
+def test_verlet_list_builds_small_systems_with_the_block_querys_pairs(
+        name, atoms, cutoff, self_interaction):
+    """Below MAX_WORK the Verlet list's exact builds come from
+    allpairs.half_pairs: the same set of pairs as the block query's (the
+    list with an explicit block), each unordered pair once, rows in the
+    MLG's site order, and (with a skin) each row's pairs within the cutoff
+    first."""
+    from ase_mlg.verletlist import VerletList
+    skin = 0.0 if np.ndim(cutoff) else 0.7
+    pos, cell = atoms.positions, atoms.cell.array
+    small = VerletList.allocate(pos, cell, atoms.pbc, cutoff, skin=skin,
+                                self_interaction=self_interaction)
+    large = VerletList.allocate(pos, cell, atoms.pbc, cutoff, skin=skin, block=2,
+                                self_interaction=self_interaction)
+    assert len(small.pairs) > 0
+    rows = naive.atom_pairs(small.pairs)
+    assert len(np.unique(rows, axis=0)) == len(rows), "a pair is listed twice"
+    np.testing.assert_array_equal(rows, naive.atom_pairs(large.pairs))
+    sites = small.grid.sites.ravel()
+    np.testing.assert_array_equal(small.pairs.order, sites[sites >= 0])
+    assert (small.pairs.images == 0).all()
+    if skin:
+        pl = small.pairs
+        t = np.repeat(np.arange(pl.natoms), np.diff(pl.rowptr))
+        D = small.X[pl.nbr] - small.X[t] + small.svec[pl.code]
+        outside = np.einsum("ij,ij->i", D, D) > cutoff ** 2
+        for r in range(pl.natoms):  # inside first: no False after a True
+            seg = outside[pl.rowptr[r]:pl.rowptr[r + 1]]
+            assert not (np.diff(seg.astype(int)) < 0).any(), r
