@@ -53,7 +53,8 @@ from .blocks import BlockIndex, block_for_radius
 from .query import half_list
 
 __all__ = ["Pairs", "Decomposition", "factor_mlg", "factor_lammps",
-           "mlg_decomposition", "balanced_decomposition", "spatial_decomposition"]
+           "mlg_decomposition", "balanced_decomposition", "least_volume_factorisations",
+           "spatial_decomposition", "ALPHAS"]
 
 
 @njit(cache=True)
@@ -402,9 +403,22 @@ def mlg_decomposition(grid, nranks, pairs=None, reach=None, weight="work", dims=
     return Decomposition((px, py, pz), owner, pairs, site_owner, work, seconds)
 
 
-#: The work weights :func:`balanced_decomposition` tries: ``1 + alpha *
-#: pairs / mean pairs`` (0: atoms alone; 1: the "work" weight).
-ALPHAS = (0.0, 0.25, 0.5, 1.0, 2.0)
+#: The work weights ``1 + alpha * pairs / mean pairs`` a balanced
+#: partition tries, in order of preference (1: the "work" weight; 0: atoms
+#: alone).
+ALPHAS = (1.0, 0.5, 2.0, 0.25, 0.0)
+
+
+def least_volume_factorisations(shape, spacing, nranks, reach, count=6):
+    """The ``count`` factorisations ``(Px, Py, Pz)`` of P with ``P_a <=
+    N_a`` of least volume within ``reach`` of a rank's block
+    (:func:`factor_mlg`'s measure; its choice first)."""
+    shape = np.asarray(shape, np.int64)
+    ext = shape * np.asarray(spacing, float)
+    fits = [f for f in _factorisations(nranks) if (np.asarray(f) <= shape).all()]
+    vols = [_reach_volume(ext, f, reach) for f in fits]
+    # stable: ties keep factor_mlg's order (the most slab-like first)
+    return [fits[k] for k in np.argsort(vols, kind="stable")[:count]]
 
 
 def balanced_decomposition(grid, nranks, pairs=None, reach=None, tol=1.05, candidates=6):
@@ -414,11 +428,13 @@ def balanced_decomposition(grid, nranks, pairs=None, reach=None, tol=1.05, candi
     (surfaces, vapour): each weight trades one against the other, and so
     does the choice of the cut axes (a slab cut only across its surface
     gives every rank the same mix).  So this tries the ``candidates``
-    factorisations of least volume within reach (:func:`factor_mlg`'s
-    measure) with each weight of :data:`ALPHAS`, and keeps, among those
-    whose owned atoms and pairs are both within ``tol`` of the mean
-    (max/mean), the one of least halo on its worst rank; where none is,
-    the one of least ``max(atoms, pairs)``.
+    factorisations of least volume within reach
+    (:func:`least_volume_factorisations`, the least halo first), each with
+    the weights of :data:`ALPHAS` in turn, and keeps the first whose owned
+    atoms and pairs are both within ``tol`` of the mean (max/mean); where
+    none is, the one of least ``max(atoms, pairs)``.  The live MPI
+    partition chooses by the same rule
+    (:func:`ase_mlg.ranks.partition.balanced_partition`).
 
     Returns
     -------
@@ -429,23 +445,23 @@ def balanced_decomposition(grid, nranks, pairs=None, reach=None, tol=1.05, candi
     if pairs is None:
         pairs = Pairs(grid, reach)
     t0 = time.perf_counter()
-    shape = np.asarray(grid.shape, np.int64)
-    ext = shape * _spacings(grid)
-    fits = [f for f in _factorisations(nranks) if (np.asarray(f) <= shape).all()]
-    fits.sort(key=lambda f: _reach_volume(ext, f, pairs.reach))
     rows = 0.5 * pairs.degree.astype(np.float64)
     mean = rows.mean() if len(rows) else 0.0
     best = None
-    for dims in fits[:candidates]:
+    for dims in least_volume_factorisations(grid.shape, _spacings(grid), nranks,
+                                            pairs.reach, candidates):
         for alpha in ALPHAS:
             w = 1.0 + alpha * rows / mean if mean > 0 else np.ones(len(rows))
             dec = mlg_decomposition(grid, nranks, pairs, weight=w, dims=dims)
             s = dec.imbalance()
+            dec.alpha = alpha
             worst = max(s["atoms"], s["pairs"])
-            key = (0, int(dec.halo.max()), worst) if worst <= tol else (1, worst, 0)
-            if best is None or key < best[0]:
-                dec.alpha = alpha
-                best = (key, dec)
+            if best is None or worst < best[0]:
+                best = (worst, dec)
+            if worst <= tol:
+                break
+        if best[0] <= tol:
+            break
     dec = best[1]
     dec.seconds = time.perf_counter() - t0
     return dec

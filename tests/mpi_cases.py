@@ -8,7 +8,7 @@ compares it with the serial calculator in its own process.  Cases:
 * ``physics``: energy, forces (gathered, original order) and stress of
   every scene; an NVE run with its energy trace, migrations and final
   positions; a Langevin run; an MDLogger log and a trajectory file written
-  by the dynamics.
+  by the dynamics; the partition's balance on a liquid-vapour slab.
 * ``errors``: errors that must reach every rank (a non-finite atom on one
   rank, ranks holding different atoms, too many ranks for the grid); every
   rank writes the message it got.
@@ -52,6 +52,47 @@ def scenes():
     tri.positions += rng.normal(0, 0.15, tri.positions.shape)
     out["triclinic"] = tri
     return {k: (a, lj) for k, a in out.items()}
+
+
+def vapour_slab():
+    """A liquid-vapour slab (~500 atoms, periodic): Ar liquid in the middle
+    third of the cell, 10 % of the atoms as vapour above and below."""
+    from ase import Atoms
+    from ase.build import bulk
+    liquid = bulk("Ar", "fcc", a=5.9, cubic=True).repeat((5, 5, 2))
+    rng = np.random.default_rng(11)
+    L, h = liquid.cell[0, 0], liquid.cell[2, 2]
+    vap = rng.random((40, 3)) * [L, L, 2 * h]
+    vap[:, 2] = np.where(vap[:, 2] < h, vap[:, 2], vap[:, 2] + h)
+    x = np.concatenate([liquid.positions + [0, 0, h], vap])
+    return Atoms("Ar%d" % len(x), positions=x, cell=[L, L, 3 * h], pbc=True)
+
+
+def balance(atoms):
+    """The live partition's choice on ``atoms`` after a first list: the
+    imbalance (atoms, pairs) of the balanced partition and of the "work"
+    weight on factor_mlg's dims, the choice, and the partition the next
+    rebuild makes."""
+    from ase_mlg import MLGCalculator
+    from ase_mlg.potentials import LennardJones
+    from ase_mlg.ranks import distribute
+    from ase_mlg.ranks.partition import Partition, balanced_partition, imbalance
+    p = distribute(atoms)
+    p.calc = MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5))
+    p.get_forces()
+    eng, comm = p.calc._ranks, p.comm
+    rows = eng._pairs(p)
+    args = (comm, p.positions, p.cell.array, p.pbc, p.get_global_number_of_atoms(),
+            8.5 + p.calc.skin)
+    mean = sum(comm.allgather(rows.sum())) / p.get_global_number_of_atoms()
+    work = Partition(*args, 1.0 + rows / mean)
+    chosen = balanced_partition(*args, rows)
+    eng._build(p)  # the next rebuild
+    live = eng.partition
+    return dict(balanced=np.array(imbalance(comm, chosen, args[1], rows)),
+                work=np.array(imbalance(comm, work, args[1], rows)),
+                choice=np.array([*chosen.dims, chosen.alpha]),
+                live=np.array([*live.dims, live.alpha]))
 
 
 def _md_system():
@@ -119,6 +160,7 @@ def physics(outdir):
     (nve, x_nve, mig), (nvt, x_nvt, _) = md_runs(
         lambda: distribute(_md_system()), logfile=os.path.join(outdir, "md.log"), trajectory=os.path.join(outdir, "md.traj"))
     res.update(nve=nve, x_nve=x_nve, nvt=nvt, x_nvt=x_nvt, migrated=np.array(mig))
+    res.update({f"balance_{k}": v for k, v in balance(vapour_slab()).items()})
     if rank == 0:
         np.savez(os.path.join(outdir, "physics.npz"), **res)
 

@@ -21,8 +21,10 @@ own :meth:`VerletList.kept` bound holds, and a rebuild anywhere is a
 rebuild everywhere (one reduction of a flag a step), so the validity
 rule is the serial one (``max |u| < skin / 2`` at a fixed cell; the
 strain bound under NPT) applied to the largest displacement of any atom.
-A rebuild recomputes the partition (balanced by the last list's work per
-atom), migrates atoms and makes new ghost lists.
+A rebuild recomputes the partition (owned atoms and pairs balanced
+together from the last list's pairs per atom,
+:func:`~ase_mlg.ranks.partition.balanced_partition`), migrates atoms and
+makes new ghost lists.
 """
 
 import time
@@ -33,7 +35,7 @@ from numba import njit
 from ..verletlist import VerletList
 from .comm import agree, any_rank, ordered_sum
 from .halo import Halo, check_atoms, migrate
-from .partition import Partition
+from .partition import balanced_partition
 
 __all__ = ["RankEngine"]
 
@@ -127,6 +129,7 @@ class RankEngine:
         self.counts = dict.fromkeys(("rebuilds", "migrated", "ghosts", "owned"), 0)
         self.timings = dict.fromkeys(("halo", "check", "rebuild", "list", "kernel"), 0.0)
         self._key = self._buffer = self._shift = self._local_numbers = None
+        self._choice = None  # the partition's (dims, alpha), tried first at a rebuild
 
     @staticmethod
     def union(comm, changes):
@@ -154,10 +157,11 @@ class RankEngine:
         """New partition, migration, ghosts; returns the local positions."""
         comm = atoms.comm
         t0 = time.perf_counter()
-        weight = self._work(atoms)
-        part = Partition(comm, atoms.arrays["positions"], atoms.cell.array, atoms.pbc,
-                         atoms.get_global_number_of_atoms(),
-                         self.potential.cutoff + self.skin, weight)
+        part = balanced_partition(comm, atoms.arrays["positions"], atoms.cell.array,
+                                  atoms.pbc, atoms.get_global_number_of_atoms(),
+                                  self.potential.cutoff + self.skin, self._pairs(atoms),
+                                  first=self._choice)
+        self._choice = (part.dims, part.alpha) if part.alpha is not None else None
         dest = part.owner(atoms.arrays["positions"])
         arrays, left = migrate(comm, dict(atoms.arrays), dest)
         atoms.arrays.clear()
@@ -173,17 +177,13 @@ class RankEngine:
         self.timings["rebuild"] += time.perf_counter() - t0
         return self._local(atoms, self.halo.exchange(atoms.arrays["positions"], atoms.cell.array))
 
-    def _work(self, atoms):
-        """Work per owned atom from the last list (1 + pairs / mean pairs),
-        or None before the first list or after the atoms changed."""
+    def _pairs(self, atoms):
+        """Pairs per owned atom in the last list (the partition's work), or
+        None before the first list or after the atoms changed."""
         pl, n = self.vl.pairs, len(atoms)
         if pl is None or self.halo is None or pl.natoms != n + self.halo.nghost:
             return None
-        deg = _degrees(pl.rowptr, pl.nbr, pl.order, n)
-        total = ordered_sum(atoms.comm, [deg.sum(), n])
-        mean = total[0] / max(total[1], 1.0)
-        return deg / mean + 1.0 if mean > 0 else None
-
+        return _degrees(pl.rowptr, pl.nbr, pl.order, n)
 
     def _build(self, atoms):
         """Partition, migration, ghosts, the local list of this rank's pairs."""

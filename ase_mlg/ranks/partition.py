@@ -16,9 +16,10 @@ by whole planes, so the cuts fall inside planes.
 The cuts come from the atoms where they are, spread over the ranks, by
 bisection on the cut values with one small all-gather of weights a round
 (:func:`_weighted_cuts`): no rank ever holds the whole system.  The weight
-of an atom is its work, ``1 + pairs / mean pairs`` (the ``"work"`` weight
-of :mod:`ase_mlg.decomposition`: atoms and pairs count alike), from the
-last list, or 1 before there is one.  Coordinates are fractional (wrapped
+of an atom is ``1 + alpha pairs / mean pairs`` from the last list (1
+before there is one), and the cut axes and ``alpha`` are chosen so that
+owned atoms and pairs are balanced together (:func:`balanced_partition`,
+the rule of :func:`ase_mlg.decomposition.balanced_decomposition`).  Coordinates are fractional (wrapped
 on periodic axes); the periodic seam at 0 is one of the cuts of a periodic
 axis that is cut.
 
@@ -29,10 +30,10 @@ A rank's region is then a box in fractional coordinates
 
 import numpy as np
 
-from ..decomposition import factor_mlg
+from ..decomposition import ALPHAS, factor_mlg, least_volume_factorisations
 from ..geometry import Box, grid_shape
 
-__all__ = ["Partition", "BISECTIONS"]
+__all__ = ["Partition", "balanced_partition", "imbalance", "BISECTIONS"]
 
 #: Rounds of bisection for each cut: 2^-60 of the coordinate range, far
 #: below the spacing of any two atoms' coordinates.
@@ -98,16 +99,22 @@ class Partition:
         ``cutoff + skin`` (Å): what a rank's halo covers.
     weight : (n,) float64, optional
         Work per atom (default 1).
+    dims : (Px, Py, Pz), optional
+        Ranks along each cell axis (default :func:`factor_mlg`'s).
 
     Attributes
     ----------
     dims : (Px, Py, Pz)
         Ranks along each cell axis.
+    shape, spacing : (3,) arrays
+        The MLG's shape and site spacing (Å) the dims are chosen on.
     box : Box
         The cell; fractional coordinates and heights.
+    alpha : float or None
+        The weight :func:`balanced_partition` chose.
     """
 
-    def __init__(self, comm, positions, cell, pbc, natoms, reach, weight=None):
+    def __init__(self, comm, positions, cell, pbc, natoms, reach, weight=None, dims=None):
         self.box = box = Box(cell, pbc)
         nranks = comm.size
         frac = self.fractional(positions)
@@ -120,7 +127,10 @@ class Partition:
         extent = np.where(box.pbc, box.heights, (hi - lo) * box.heights)
         shape = grid_shape(extent, box.pbc, natoms)
         spacing = np.maximum(extent, 1e-12) / np.maximum(shape, 1)
-        self.dims = dims = tuple(int(d) for d in factor_mlg(shape, spacing, nranks, reach))
+        if dims is None:
+            dims = factor_mlg(shape, spacing, nranks, reach)
+        self.dims = dims = tuple(int(d) for d in dims)
+        self.shape, self.spacing, self.alpha = shape, spacing, None
         if any(d > s for d, s in zip(dims, shape)):
             raise ValueError(
                 f"{nranks} ranks on too few sites: the MLG of {natoms} atoms is "
@@ -179,3 +189,68 @@ class Partition:
             edges.append((low, high))
         low, high = np.array(edges).T
         return low, high, np.array(self.dims) > 1
+
+
+def balanced_partition(comm, positions, cell, pbc, natoms, reach, pairs=None, tol=1.05,
+                       first=None, candidates=6):
+    """The partition that balances owned atoms and pairs together, by the
+    rule of :func:`ase_mlg.decomposition.balanced_decomposition`: the
+    least-volume factorisations in turn, each with the weights ``1 + alpha
+    pairs / mean`` of :data:`~ase_mlg.decomposition.ALPHAS`, the first
+    whose owned atoms and pairs (max/mean over ranks; half of each of an
+    atom's ``pairs``) are both within ``tol``; where none is, the most
+    balanced.  ``first``, a ``(dims, alpha)`` (the last choice), is tried
+    before the others: a scene that stays balanced costs one partition a
+    rebuild.  Without ``pairs`` (before the first list) the atoms weigh
+    alike, on :func:`factor_mlg`'s dims.  Every rank makes the same choice:
+    each test is reduced over all ranks."""
+    if pairs is None:
+        return Partition(comm, positions, cell, pbc, natoms, reach)
+    rows = np.asarray(pairs, float)
+    total = sum(comm.allgather(np.array([rows.sum(), len(rows)])))
+    mean = total[0] / max(total[1], 1.0)
+    if not mean > 0:
+        return Partition(comm, positions, cell, pbc, natoms, reach)
+    nranks = comm.size
+
+    def attempt(dims, alpha):
+        part = Partition(comm, positions, cell, pbc, natoms, reach,
+                         1.0 + alpha * rows / mean, dims)
+        part.alpha = alpha
+        return max(imbalance(comm, part, positions, rows)), part
+
+    tried, best = [], None
+    if first is not None:
+        try:  # the same on every rank: a grid too small for its dims now
+            best = attempt(*first)
+            tried.append(first)
+        except ValueError:
+            best = None
+    if best is None:
+        best = attempt(None, ALPHAS[0])
+        tried.append((best[1].dims, ALPHAS[0]))
+    if best[0] <= tol:
+        return best[1]
+    shape, spacing = best[1].shape, best[1].spacing
+    for dims in least_volume_factorisations(shape, spacing, nranks, reach, candidates):
+        for alpha in ALPHAS:
+            if (tuple(dims), alpha) in tried:
+                continue
+            worst, part = attempt(dims, alpha)
+            if worst < best[0]:
+                best = (worst, part)
+            if worst <= tol:
+                return part
+    return best[1]
+
+
+def imbalance(comm, part, positions, pairs):
+    """``(atoms, pairs)``: max/mean over ranks of the atoms ``part`` gives
+    each rank and of their pairs (half of each atom's ``pairs``), for the
+    atoms at ``positions`` on every rank (collective)."""
+    owner = part.owner(positions)
+    n = comm.size
+    counts = sum(comm.allgather(np.stack([
+        np.bincount(owner, minlength=n).astype(float),
+        np.bincount(owner, weights=0.5 * np.asarray(pairs, float), minlength=n)])))
+    return tuple(float(c.max() / c.mean()) if c.mean() > 0 else 1.0 for c in counts)
