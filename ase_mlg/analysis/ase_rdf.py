@@ -16,7 +16,7 @@ from numba import prange
 
 from ..parallel import serial_and_parallel, use_threads
 from .checks import check_nbins, check_rmax, check_template, one_line
-from .pairs import PairSource, chunk_bounds, n_chunks
+from .pairs import PairSource, chunk_bounds, chunk_totals, n_chunks
 
 __all__ = ["rdf", "CellTooSmall", "VolumeNotDefined"]
 
@@ -71,7 +71,7 @@ def _ase_counts(pi, pj, S, pos, cell, dr, nbins, centre, other, nchunk):
                 k = np.ceil(d / dr)
                 if k <= nbins:
                     hist[c, int(k)] += 1
-    return hist.sum(axis=0)
+    return chunk_totals(hist)
 
 
 # twins through the package's threading policy: the threaded one is launched

@@ -23,7 +23,7 @@ from MDAnalysis.lib import distances as _mda_distances
 from MDAnalysis.lib.mdamath import triclinic_vectors
 
 from ..parallel import serial_and_parallel, use_threads
-from .pairs import chunk_bounds
+from .pairs import chunk_bounds, chunk_totals
 
 __all__ = ["MDAConvention", "Metric", "HistogramBins", "PairWeights", "SiteBins",
            "SiteMaps", "fastns_max_cutoff", "mda_counts", "mda_s_counts"]
@@ -229,7 +229,7 @@ def _mda_counts(pi, pj, metric, bins, weights, nchunk):
             k = _np_histogram_bin(d, first, last, denom, nb, edges)
             if k >= 0:
                 hist[c, k] += w
-    out = hist.sum(axis=0)
+    out = chunk_totals(hist)
     k0 = _np_histogram_bin(0.0, first, last, denom, nb, edges)
     if k0 >= 0:
         for a in range(m1.size):
