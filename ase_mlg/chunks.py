@@ -157,7 +157,7 @@ def _chunks(rowptr, nbr, nchunk):
         shift = max(0, int(np.ceil(np.log2(max(n, 1) / _NBIN))))
         nbin = -(-n // (1 << shift))
         marks = np.empty((nchunk, nbin), np.uint8)
-        kernel = _mark_threaded if use_threads("pairs", m) else _mark_serial
+        kernel = _mark_threaded if use_threads("marks", m) else _mark_serial
         kernel(rowptr, nbr, rows, shift, marks, lo, width)
     offset = np.zeros(nchunk + 1, np.int64)
     np.cumsum(width, out=offset[1:])

@@ -56,7 +56,13 @@ above them), and :func:`use_threads` threads work of at least that size:
 
 * ``"sites"``: grid sites of a swap pass, a follow or a template scan;
 * ``"atoms"``: atoms of a query, a gather or a reordering of rows;
-* ``"pairs"``: pairs of a pair-potential sum or an RDF histogram.
+* ``"pairs"``: pairs of a pair-potential sum or an RDF histogram;
+* ``"marks"``: pairs of the pass that finds each row chunk's window
+  (:mod:`ase_mlg.chunks`, once a list build): a byte written a pair, 1 ns,
+  so threads save 0.4 ms a build at 10^4 atoms (0.8 -> 0.4 ms, 425,000
+  pairs) and 2 ms at 10^5 (4.3 -> 2.2 ms), and their compilation costs
+  1.3-2 s of a first call: threaded from 5 million pairs (about 10^5 atoms
+  of a liquid at 9.5 Å).
 
 Whatever the thread count, results are the same bits: kernels split work
 into chunks fixed by the work (never by the thread count) or into
@@ -264,7 +270,7 @@ if _FORK_HAZARD is not None:
 #: on 2 and 16 cores: below these, thread hand-offs cost more than they
 #: save).  Fixed, not a setting: what a user sets is the thread count
 #: (``numba.set_num_threads``).
-THRESHOLDS = {"sites": 32768, "atoms": 5000, "pairs": 50_000}
+THRESHOLDS = {"sites": 32768, "atoms": 5000, "pairs": 50_000, "marks": 5_000_000}
 
 
 def use_threads(kind, size):

@@ -104,6 +104,28 @@ def _calculator_list(atoms, pot, skin=1.0):
     return pl, (X, types, pl.rowptr, pl.nbr, pl.code, svec, pl.order)
 
 
+def test_window_pass_threaded_twin_gives_the_serial_windows(monkeypatch):
+    """The chunks' window pass runs threaded only from THRESHOLDS["marks"]
+    pairs (10^5 atoms, beyond the tests' sizes): with the threshold
+    lowered, the threaded twin gives the same chunks (windows, offsets,
+    segments) as the serial one."""
+    from ase_mlg import chunks, parallel
+    atoms = argon(5)
+    pl, _ = _calculator_list(atoms, LennardJones(**AR))
+    assert len(pl) < parallel.THRESHOLDS["marks"]
+    serial = chunks.RowChunks(pl.rowptr, pl.nbr, 7).arrays
+    called = []
+    monkeypatch.setitem(parallel.THRESHOLDS, "marks", 1)
+    real = chunks._mark_threaded
+    monkeypatch.setattr(chunks, "_mark_threaded",
+                        lambda *a: (called.append(1), real(*a))[1])
+    threaded = chunks.RowChunks(pl.rowptr, pl.nbr, 7).arrays
+    assert called, "the threaded twin did not run"
+    for name, a in zip(serial._fields, serial):
+        if name != "thread":
+            np.testing.assert_array_equal(getattr(threaded, name), a, err_msg=name)
+
+
 def test_chunks_reproducible_and_agree_across_counts():
     """Every chunking of the calculator's list is ASE's answer (windowed
     buffers lose no pair), and the same chunks give the same bits."""
