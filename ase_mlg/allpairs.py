@@ -390,7 +390,7 @@ def all_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False,
         return None
     want = (("j" in quantities) | ("d" in quantities) << 1 | ("D" in quantities) << 2
             | ("S" in quantities) << 3)
-    res = _call(_all_pairs, positions, args, (want, float(max_work)))
+    res = _call(_all_pairs, positions, args, (want,), float(max_work))
     if res is None:
         return None
     i, j, d, D, S = res
@@ -408,7 +408,7 @@ def half_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False, max_wo
     args = _arguments(cell, pbc, pair_cutoff, self_interaction)
     if args is None:
         return None
-    res = _call(_half, positions, args, (float(max_work),))
+    res = _call(_half, positions, args, (), float(max_work))
     if res is None:
         return None
     _, store, m = res
@@ -440,15 +440,22 @@ def _arguments(cell, pbc, pair_cutoff, self_interaction):
         bool(self_interaction))
 
 
-def _call(kernel, positions, args, tail):
-    """``kernel``'s arrays, once more on Box's completed cell where the
+def _call(kernel, positions, args, tail, max_work):
+    """``kernel``'s arrays (its arguments: ``positions``, ``args``,
+    ``tail``, ``max_work``), once more on Box's completed cell where the
     kernel asks for it (Box completes a missing vector of an open axis, or
     raises what the large path raises); None where the large path must
     answer."""
     cell, pbc, rest = args
-    status, *res = kernel(positions, cell, pbc, *rest, *tail)
+    n = len(positions)
+    if 0.5 * n * (n + 1) > max_work:
+        # beyond the work bound whatever the images (one at least): the
+        # large path's, without compiling the kernel for nothing (3 s of a
+        # first call of 10^4 atoms)
+        return None
+    status, *res = kernel(positions, cell, pbc, *rest, *tail, max_work)
     if status == _NEEDS_BOX:
-        status, *res = kernel(positions, Box(cell, pbc).full, pbc, *rest, *tail)
+        status, *res = kernel(positions, Box(cell, pbc).full, pbc, *rest, *tail, max_work)
     return res if status == _DONE else None
 
 
