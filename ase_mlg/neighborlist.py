@@ -336,7 +336,7 @@ class _MLGPrimitive:
         self.nupdates = 0
         # one grid kept across builds; a new cell builds a new grid (see
         # ase_mlg.tracker).  ASE's rebuild rule stays here (_needs_build).
-        self.verlet_list = VerletList(self.cutoffs, block=BLOCK, follow_cell=False,
+        self.verlet_list = VerletList(self.cutoffs, follow_cell=False,
                                       self_interaction=bool(self_interaction))
         self._reduced = (None, None, None)  # ASE's half: (cell and pbc, reduced cell, basis)
 
