@@ -6,8 +6,9 @@ compilation or cache load under its compiler lock (an event); the timed loops of
 the demo (the grid's walk and the NVE MD, the two loops behind its
 "µs/atom/step" and "ms/step" figures) are found through their progress-bar
 iterables.  None of those events may fall inside a timed loop, and the
-loops' CPU times on the cold and the warm run must agree within 2x (CPU
-time: the machine's load moves wall time by more than that between runs).
+loops' CPU times on the cold and the warm run must agree within 0.2 s, less
+than one kernel's compilation (CPU time: the machine's load moves wall
+time by more than that between runs).
 The runs need processes of their own (this one has compiled or loaded the
 kernels already); their cache is removed when they are done.
 """
@@ -93,11 +94,12 @@ def test_cold_and_warm_demo_time_the_same_work(tmp_path):
     for desc in TIMED:
         assert cold["inside"][desc] == 0, (desc, cold)
         assert warm["inside"][desc] == 0, (desc, warm)
-        ratio = cold["cpu"][desc] / warm["cpu"][desc]
         # a kernel compiled inside a loop costs >= 0.3 s against loops of
-        # 0.03-0.06 s (ratio > 5); 2x leaves room for a cold process's first
-        # touches (1.69x seen once in a full oldest-pins run, 1.5x the old bound)
-        assert 1 / 2 < ratio < 2, (desc, cold["cpu"], warm["cpu"])
+        # 0.02-0.06 s: the bound is on the difference, not the ratio (CI's
+        # overlapping runs gave 0.040 against 0.018 s, 2.2x, with nothing
+        # compiled inside)
+        diff = cold["cpu"][desc] - warm["cpu"][desc]
+        assert abs(diff) < 0.2, (desc, cold["cpu"], warm["cpu"])
     # the warm-ups went through a list rebuild and swap sweeps
     assert cold["md_warmup"]["list_builds"] >= 2 and cold["md_warmup"]["sweeps"] > 0
     assert cold["warmup"] > warm["warmup"]
