@@ -231,9 +231,11 @@ def _grow(store):
 
 @njit(cache=True)
 def _half(pos, cell, pbc, mode, cut, radii, types, table, self_interaction, max_work):
-    """The half list, each pair ``i <= j`` once, in (i, j, S) order:
+    """The half list, each pair ``i < j`` once, in (i, j, S) order, and an
+    atom's pairs with its own images (``i == j``) both as S and -S (the
+    full list writes each once; :func:`half_pairs` keeps one):
     ``(status, frame, store, m)``, rows ``store[:m]`` = (i, j, S) (a
-    Python entry point too: :func:`half_pairs`); status
+    Python entry point too); status
     ``_NEEDS_BOX`` (the cell is Box's to complete or refuse) or
     ``_NOT_MINE`` (the large path's) with ``m = 0``."""
     n = pos.shape[0]

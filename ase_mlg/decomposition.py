@@ -54,7 +54,7 @@ from .query import half_list
 
 __all__ = ["Pairs", "Decomposition", "factor_mlg", "factor_lammps",
            "mlg_decomposition", "balanced_decomposition", "least_volume_factorisations",
-           "spatial_decomposition", "ALPHAS"]
+           "first_balanced", "spatial_decomposition", "ALPHAS"]
 
 
 @njit(cache=True)
@@ -421,6 +421,21 @@ def least_volume_factorisations(shape, spacing, nranks, reach, count=6):
     return [fits[k] for k in np.argsort(vols, kind="stable")[:count]]
 
 
+def first_balanced(attempt, candidates, tol, best=None):
+    """The balanced partitions' rule: try ``candidates`` (``(dims, alpha)``
+    pairs, in order of preference) with ``attempt(dims, alpha) -> (worst,
+    partition)`` (``worst``: max/mean of owned atoms or pairs, the larger)
+    and return the first partition with ``worst <= tol``, else the one of
+    least ``worst`` (``best``: a ``(worst, partition)`` tried before)."""
+    for dims, alpha in candidates:
+        worst, part = attempt(dims, alpha)
+        if best is None or worst < best[0]:
+            best = (worst, part)
+        if worst <= tol:
+            return part
+    return best[1]
+
+
 def balanced_decomposition(grid, nranks, pairs=None, reach=None, tol=1.05, candidates=6):
     """The MLG partition that balances owned atoms and pairs together.
 
@@ -447,22 +462,18 @@ def balanced_decomposition(grid, nranks, pairs=None, reach=None, tol=1.05, candi
     t0 = time.perf_counter()
     rows = 0.5 * pairs.degree.astype(np.float64)
     mean = rows.mean() if len(rows) else 0.0
-    best = None
-    for dims in least_volume_factorisations(grid.shape, _spacings(grid), nranks,
-                                            pairs.reach, candidates):
-        for alpha in ALPHAS:
-            w = 1.0 + alpha * rows / mean if mean > 0 else np.ones(len(rows))
-            dec = mlg_decomposition(grid, nranks, pairs, weight=w, dims=dims)
-            s = dec.imbalance()
-            dec.alpha = alpha
-            worst = max(s["atoms"], s["pairs"])
-            if best is None or worst < best[0]:
-                best = (worst, dec)
-            if worst <= tol:
-                break
-        if best[0] <= tol:
-            break
-    dec = best[1]
+
+    def attempt(dims, alpha):
+        w = 1.0 + alpha * rows / mean if mean > 0 else np.ones(len(rows))
+        dec = mlg_decomposition(grid, nranks, pairs, weight=w, dims=dims)
+        dec.alpha = alpha
+        s = dec.imbalance()
+        return max(s["atoms"], s["pairs"]), dec
+
+    order = [(d, a) for d in least_volume_factorisations(grid.shape, _spacings(grid), nranks,
+                                                         pairs.reach, candidates)
+             for a in ALPHAS]
+    dec = first_balanced(attempt, order, tol)
     dec.seconds = time.perf_counter() - t0
     return dec
 

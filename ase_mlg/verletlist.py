@@ -293,17 +293,17 @@ class VerletList:
         self.width = template(grid, numbers) if callable(template) else template
         n = grid.natoms
         inner_first = False  # whether the rows hold the pairs within the cutoff first
-        if self.radii is not None:
-            rmax = float(self.radii.max()) if n else 0.0
-            rat, hint = self.radii + rmax, None
-        else:
-            rat = np.full(n, self.rlist)
-            hint = None if old is None or old.natoms != n else len(old) / max(n, 1)
         pl = None
         if self.width is None and self.block is None:
             pl = self._small_list(grid, cell, pbc)
             inner_first = pl is not None
         if pl is None:
+            if self.radii is not None:
+                rmax = float(self.radii.max()) if n else 0.0
+                rat, hint = self.radii + rmax, None
+            else:
+                rat = np.full(n, self.rlist)
+                hint = None if old is None or old.natoms != n else len(old) / max(n, 1)
             index = BlockIndex(grid, block_for_radius(grid, float(rat.max(initial=0.0)))
                                if self.block is None else self.block)
             if self.width is not None:

@@ -30,7 +30,7 @@ A rank's region is then a box in fractional coordinates
 
 import numpy as np
 
-from ..decomposition import ALPHAS, factor_mlg, least_volume_factorisations
+from ..decomposition import ALPHAS, factor_mlg, first_balanced, least_volume_factorisations
 from ..geometry import Box, grid_shape
 
 __all__ = ["Partition", "balanced_partition", "imbalance", "BISECTIONS"]
@@ -232,16 +232,10 @@ def balanced_partition(comm, positions, cell, pbc, natoms, reach, pairs=None, to
     if best[0] <= tol:
         return best[1]
     shape, spacing = best[1].shape, best[1].spacing
-    for dims in least_volume_factorisations(shape, spacing, nranks, reach, candidates):
-        for alpha in ALPHAS:
-            if (tuple(dims), alpha) in tried:
-                continue
-            worst, part = attempt(dims, alpha)
-            if worst < best[0]:
-                best = (worst, part)
-            if worst <= tol:
-                return part
-    return best[1]
+    order = [(tuple(d), a) for d in least_volume_factorisations(shape, spacing, nranks, reach,
+                                                                candidates)
+             for a in ALPHAS if (tuple(d), a) not in tried]
+    return first_balanced(attempt, order, tol, best)
 
 
 def imbalance(comm, part, positions, pairs):
