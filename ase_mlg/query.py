@@ -382,6 +382,8 @@ def _scan(b0, b1, blocks, reach, cutoff, fmt, room, out_c):
     later_c = np.empty(256, dtype=np.int64)
     hit = np.empty(bsz, dtype=np.int64)
     dist2 = np.empty(bsz)
+    d2all = np.empty(bsz)
+    P0, P1, P2 = P[0], P[1], P[2]
     qlo = np.empty(3)
     qhi = np.empty(3)
     for A in range(b0, b1):
@@ -429,14 +431,21 @@ def _scan(b0, b1, blocks, reach, cutoff, fmt, room, out_c):
                 kmin = 0
                 if B == A and mzero:
                     kmin = t - u0
-                # branch-free pre-filter: compact the slots that pass
+                # the pre-filter: the block's distances in a loop the
+                # compiler vectorises (slices: no index wraparound), then
+                # the slots that pass, compacted without a branch (one loop
+                # doing both ran 18% slower: scalar, 4x unrolled, spilling)
+                xa = P0[u0:u0 + bsz]
+                xb = P1[u0:u0 + bsz]
+                xc = P2[u0:u0 + bsz]
+                for k in range(bsz):
+                    dx = xa[k] - qx
+                    dy = xb[k] - qy
+                    dz = xc[k] - qz
+                    d2all[k] = dx * dx + dy * dy + dz * dz
                 npass = 0
                 for k in range(bsz):
-                    u = u0 + k
-                    dx = P[0, u] - qx
-                    dy = P[1, u] - qy
-                    dz = P[2, u] - qz
-                    d2f = dx * dx + dy * dy + dz * dz
+                    d2f = d2all[k]
                     hit[npass] = k
                     dist2[npass] = d2f
                     npass += (d2f < Rf2) & (k >= kmin)
