@@ -276,11 +276,18 @@ class VerletList:
         return None
 
     # -- building it ----------------------------------------------------------
-    def build(self, positions, cell, pbc, numbers=None):
+    def build(self, positions, cell, pbc, numbers=None, same_atoms=True):
         """Build the list for ``positions`` (float64 (N, 3), Å) in ``cell``
         with ``pbc``, whatever the state (the grid is updated, not rebuilt,
-        where it can be)."""
+        where it can be).  ``same_atoms=False`` says that the rows are not
+        the atoms of the last build (a rank's local system after migration
+        and new ghosts): the grid is then built anew, since following it
+        would sweep nearly every atom to its new label (measured at 2 ranks
+        of 108,000 atoms: 3.6 million swaps, 108 ms, against 35 ms for a
+        new grid)."""
         t0 = time.perf_counter()
+        if not same_atoms:
+            self._tracker.reset()
         cell = np.asarray(cell, dtype=np.float64)
         old = self.pairs if self.pairs is not None else self._spare
         self.pairs = self._chunks = self._spare = None
@@ -361,11 +368,11 @@ class VerletList:
         order = np.ascontiguousarray(sites[sites >= 0], dtype=np.int64)
         return PairList.from_pairs(order, np.zeros((len(order), 3), np.int64), i, j, S)
 
-    def rebuild(self, positions, cell, pbc, numbers=None):
+    def rebuild(self, positions, cell, pbc, numbers=None, same_atoms=True):
         """:meth:`build`, and the kernel's positions (:attr:`X`,
         :attr:`svec`): what :meth:`update` does when the list does not hold."""
         cell = np.asarray(cell, dtype=np.float64)
-        self.build(positions, cell, pbc, numbers)
+        self.build(positions, cell, pbc, numbers, same_atoms=same_atoms)
         t0 = time.perf_counter()
         if self.X is None:
             self._gather(self.grid.positions, cell)

@@ -128,7 +128,7 @@ class RankEngine:
         self.halo = self.partition = None
         self.counts = dict.fromkeys(("rebuilds", "migrated", "ghosts", "owned"), 0)
         self.timings = dict.fromkeys(("halo", "check", "rebuild", "list", "kernel"), 0.0)
-        self._key = self._buffer = self._shift = self._local_numbers = None
+        self._key = self._buffer = self._shift = self._local_numbers = self._ids = None
         self._choice = None  # the partition's (dims, alpha), tried first at a rebuild
 
     @staticmethod
@@ -160,7 +160,7 @@ class RankEngine:
         part = balanced_partition(comm, atoms.arrays["positions"], atoms.cell.array,
                                   atoms.pbc, atoms.get_global_number_of_atoms(),
                                   self.potential.cutoff + self.skin, self._pairs(atoms),
-                                  first=self._choice)
+                                  first=self._choice, current=self.partition)
         self._choice = (part.dims, part.alpha) if part.alpha is not None else None
         dest = part.owner(atoms.arrays["positions"])
         arrays, left = migrate(comm, dict(atoms.arrays), dest)
@@ -193,10 +193,19 @@ class RankEngine:
         # the local atoms' numbers, fixed until the next build (a change of
         # numbers is a rebuild): not concatenated again every step
         self._local_numbers = np.concatenate([atoms.numbers, halo.ghost_numbers])
-        vl.rebuild(local, atoms.cell.array, halo.pbc, self._local_numbers)
+        ids = np.concatenate([atoms.indices, halo.ghost_indices])
+        images = np.concatenate([halo.own_images, halo.ghost_images])
+        # migration and new ghosts relabel the local atoms: the grid then
+        # follows nothing it knew, and is built anew.  A new image along a
+        # periodic axis of the local system (an atom wrapped into the
+        # region) is the same site to the grid.
+        same = (self._ids is not None and np.array_equal(self._ids[0], ids)
+                and not ((self._ids[1] != images) & ~halo.pbc).any())
+        vl.rebuild(local, atoms.cell.array, halo.pbc, self._local_numbers, same_atoms=same)
+        self._ids = (ids, images)
         pl = vl.pairs
-        index = np.concatenate([atoms.indices, halo.ghost_indices])[pl.order]
-        image = np.ascontiguousarray(np.concatenate([halo.own_images, halo.ghost_images])[pl.order])
+        index = ids[pl.order]
+        image = np.ascontiguousarray(images[pl.order])
         m = _own_pairs(pl.rowptr, pl.nbr, pl.code, np.ascontiguousarray(pl.order >= len(atoms)),
                        np.ascontiguousarray(index), image)
         pl.nbr, pl.code = pl.nbr[:m], pl.code[:m]
