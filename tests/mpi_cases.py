@@ -87,12 +87,15 @@ def balance(atoms):
     mean = sum(comm.allgather(rows.sum())) / p.get_global_number_of_atoms()
     work = Partition(*args, 1.0 + rows / mean)
     chosen = balanced_partition(*args, rows)
+    before = eng.partition
+    in_use = imbalance(comm, before, args[1], rows)
     eng._build(p)  # the next rebuild
     live = eng.partition
     return dict(balanced=np.array(imbalance(comm, chosen, args[1], rows)),
                 work=np.array(imbalance(comm, work, args[1], rows)),
                 choice=np.array([*chosen.dims, chosen.alpha]),
-                live=np.array([*live.dims, live.alpha]))
+                live=np.array([*live.dims, np.nan if live.alpha is None else live.alpha]),
+                kept=np.array(live is before), in_use=np.array(in_use))
 
 
 def _md_system():
