@@ -17,7 +17,8 @@ step:
 
 and a latency per collective (5 a step: the state check, two flags, the
 pair sum's error flag, the energy; plus 3 x 60 rounds of the partition's
-bisection a rebuild), ``ALPHA`` seconds x log2(P) (a tree; the 2-rank
+bisection a rebuild, an upper bound: a rebuild keeps the partition in use
+while it is within 1.05 and bisects only when it drifted past), ``ALPHA`` seconds x log2(P) (a tree; the 2-rank
 measurement cannot separate it, so it is an assumption, printed).
 
 The halo of a rank is the liquid's number density times the volume within
