@@ -20,9 +20,10 @@ from ase.build import bulk
 from numba.core import types
 from numba.core.dispatcher import Dispatcher
 
-from ase_mlg import MLGCalculator
+from ase_mlg import MLG, MLGCalculator
 from ase_mlg.neighborlist import NeighborList, neighbor_list
 from ase_mlg.potentials import LennardJones
+from ase_mlg.query import exact_pairs
 
 
 def _structures_seen():
@@ -47,9 +48,14 @@ def _structures_seen():
 
 
 def test_each_structure_has_one_type_whatever_the_codes():
-    few = bulk("Ar", "fcc", a=5.26, cubic=True).repeat(3)
+    # 864 atoms: beyond the small-system path (allpairs.MAX_WORK), so the
+    # calculator, neighbor_list and NeighborList take the block query
+    few = bulk("Ar", "fcc", a=5.26, cubic=True).repeat(6)
     few.rattle(0.02, seed=1)
     many = bulk("Ar", "fcc", a=5.26)  # one atom: its own images, > 256 codes
+    # the small path answers for one atom: the block query's scan with
+    # int32 codes is run on its grid directly
+    exact_pairs(MLG(many.positions, many.cell, many.pbc), 12.0)
     for atoms, rc in ((few, 6.0), (many, 12.0)):
         for energies in (False, True):
             atoms.calc = MLGCalculator(LennardJones(sigma=3.4, epsilon=0.0104, rc=rc))
