@@ -136,7 +136,7 @@ class MLGCalculator(Calculator):
         old = self.atoms
         changes = list(all_changes) if old is None or len(old) != len(atoms) else [
             name for name, a, b, equal in (
-                ("positions", old.positions, atoms.positions, np.array_equal),
+                ("positions", old.positions, atoms.positions, same),
                 ("numbers", old.numbers, atoms.numbers, same), ("cell", old.cell.array,
                  atoms.cell.array, same), ("pbc", old.pbc, atoms.pbc, same)) if not equal(a, b)]
         # ranks decide together: one rank computing alone would wait forever

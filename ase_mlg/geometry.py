@@ -52,7 +52,7 @@ def as_positions(positions, name="positions"):
 
 def same(a, b):
     """``np.array_equal(a, b)`` for the arrays a force call compares (atomic
-    numbers, cell, pbc) without its numpy passes, which were a fifth of the
+    numbers, positions, cell, pbc) without its numpy passes, which were a fifth of the
     calculator's own time at 256 atoms: integers by their bytes, a few
     numbers as Python lists (NaN is unequal, -0.0 equals 0.0, as there)."""
     a, b = np.asarray(a), np.asarray(b)
@@ -62,6 +62,10 @@ def same(a, b):
         return a.tobytes() == b.tobytes()
     if a.size <= 64:
         return a.tolist() == b.tolist()
+    # positions after an MD step differ at once: a full pass (0.19 ms at
+    # 10^5 atoms) only where the first entries agree (NaN is unequal here too)
+    if a.flat[0] != b.flat[0]:
+        return False
     return bool(np.array_equal(a, b))
 
 

@@ -14,6 +14,7 @@ or a half list oriented by a rule on the cell shifts (ASE's two halves).
 
 from collections import namedtuple
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -308,21 +309,46 @@ def _gather_atoms(positions, rank, images, cell, ref, M, X, worst):
     n = rank.shape[0]
     nchunk = worst.shape[0]
     check = ref.shape[0] > 0
+    # flat views, unsigned indices and the 3 x 3 matrices in registers: 2-D
+    # indexing multiplies by the run-time row stride and wraps signed
+    # indices, and a store to X could alias the matrices, which were then
+    # read again for every atom (as in pairsum._pair_sum)
+    U = numba.uint64
+    x = positions.reshape(-1)
+    im = images.reshape(-1)
+    r = ref.reshape(-1)
+    Xf = X.reshape(-1)
+    c00, c01, c02 = cell[0, 0], cell[0, 1], cell[0, 2]
+    c10, c11, c12 = cell[1, 0], cell[1, 1], cell[1, 2]
+    c20, c21, c22 = cell[2, 0], cell[2, 1], cell[2, 2]
+    M00, M01, M02 = M[0, 0], M[0, 1], M[0, 2]
+    M10, M11, M12 = M[1, 0], M[1, 1], M[1, 2]
+    M20, M21, M22 = M[2, 0], M[2, 1], M[2, 2]
     for ch in prange(nchunk):
         w = 0.0
-        for a in range(ch * n // nchunk, (ch + 1) * n // nchunk):
-            t = rank[a]
-            m0 = images[a, 0]
-            m1 = images[a, 1]
-            m2 = images[a, 2]
-            s = 0.0
-            for c in range(3):
-                x = positions[a, c]
-                X[t, c] = x + (m0 * cell[0, c] + m1 * cell[1, c] + m2 * cell[2, c])
-                if check:
-                    d = x - (ref[a, 0] * M[0, c] + ref[a, 1] * M[1, c]
-                             + ref[a, 2] * M[2, c])
-                    s += d * d
+        for a in range(U(ch * n // nchunk), U((ch + 1) * n // nchunk)):
+            t = U(3) * U(rank[a])
+            i = U(3) * a
+            m0 = im[i]
+            m1 = im[i + U(1)]
+            m2 = im[i + U(2)]
+            x0 = x[i]
+            x1 = x[i + U(1)]
+            x2 = x[i + U(2)]
+            Xf[t] = x0 + (m0 * c00 + m1 * c10 + m2 * c20)
+            Xf[t + U(1)] = x1 + (m0 * c01 + m1 * c11 + m2 * c21)
+            Xf[t + U(2)] = x2 + (m0 * c02 + m1 * c12 + m2 * c22)
+            if not check:
+                continue
+            r0 = r[i]
+            r1 = r[i + U(1)]
+            r2 = r[i + U(2)]
+            d0 = x0 - (r0 * M00 + r1 * M10 + r2 * M20)
+            d1 = x1 - (r0 * M01 + r1 * M11 + r2 * M21)
+            d2 = x2 - (r0 * M02 + r1 * M12 + r2 * M22)
+            s = d0 * d0
+            s += d1 * d1
+            s += d2 * d2
             if s > w:
                 w = s
             elif not s == s:  # NaN: the list is never valid
