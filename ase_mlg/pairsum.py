@@ -290,6 +290,7 @@ def _pair_sum(pair, lst, code, pot, chunks, out):
     # sum the windows covering each rank in chunk order, back in atom order;
     # pieces of ranks, each walking the segments it crosses
     npiece = nchunk
+    ff = forces.reshape(-1)
     for piece in prange(npiece):
         t0 = piece * n // npiece
         t1 = (piece + 1) * n // npiece
@@ -310,15 +311,16 @@ def _pair_sum(pair, lst, code, pot, chunks, out):
                 s += 1
             a = order[t]
             f0 = f1 = f2 = 0.0
-            for w in range(cover_ptr[s], cover_ptr[s + 1]):
+            for w in range(U(cover_ptr[s]), U(cover_ptr[s + 1])):
                 c = cover[w]
-                e = offset[c] + local_rank(t, wlo[c], n)
-                f0 += fbuf[e, 0]
-                f1 += fbuf[e, 1]
-                f2 += fbuf[e, 2]
-            forces[a, 0] = f0
-            forces[a, 1] = f1
-            forces[a, 2] = f2
+                e = U(3) * U(offset[c] + local_rank(t, wlo[c], n))
+                f0 += fb[e]
+                f1 += fb[e + U(1)]
+                f2 += fb[e + U(2)]
+            i = U(3) * U(a)
+            ff[i] = f0
+            ff[i + U(1)] = f1
+            ff[i + U(2)] = f2
             if want_e:
                 es = 0.0
                 for w in range(cover_ptr[s], cover_ptr[s + 1]):
