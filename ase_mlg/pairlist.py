@@ -17,6 +17,10 @@ from collections import namedtuple
 import numba
 import numpy as np
 from numba import njit, prange
+from numba.core import types
+from numba.core.imputils import impl_ret_borrowed
+from numba.extending import intrinsic
+from numba.np.arrayobj import make_array, populate_array
 
 from .parallel import (dynamic_schedule, run_chunks, serial_and_parallel, threads_for,
                        use_threads)
@@ -296,6 +300,30 @@ def _orientation(orient, n):
     return Orientation(offsets, np.ascontiguousarray(basis, dtype=np.int64))
 
 
+@intrinsic
+def flat(typingctx, a):
+    """The 1-D view of a C-contiguous array, inside a kernel.
+
+    What ``a.reshape(-1)`` gives, without numba's reshape: its
+    implementation (shape inference and checks) compiled for 0.5 s on the
+    first call of every fresh environment, where this takes none.  The
+    kernels index their (N, 3) arrays through it: numba indexes a 2-D
+    array through its run-time row stride (a multiply per access), a flat
+    view at a constant stride.
+    """
+    if not (isinstance(a, types.Array) and a.layout == "C"):
+        return None
+    ret = a.copy(ndim=1, layout="C")
+
+    def codegen(context, builder, sig, args):
+        src = make_array(a)(context, builder, value=args[0])
+        dst = make_array(ret)(context, builder)
+        populate_array(dst, data=src.data, shape=[src.nitems], strides=[src.itemsize],
+                       itemsize=src.itemsize, meminfo=src.meminfo, parent=src.parent)
+        return impl_ret_borrowed(context, builder, ret, dst._getvalue())
+    return ret(a), codegen
+
+
 def _gather_atoms(positions, rank, images, cell, ref, M, X, worst):
     """Write ``X[rank[a]] = x[a] + images[a] @ cell`` (``images`` in atom
     order) and, when ``ref`` has rows, find how far each atom moved beyond
@@ -314,10 +342,10 @@ def _gather_atoms(positions, rank, images, cell, ref, M, X, worst):
     # indices, and a store to X could alias the matrices, which were then
     # read again for every atom (as in pairsum._pair_sum)
     U = numba.uint64
-    x = positions.reshape(-1)
-    im = images.reshape(-1)
-    r = ref.reshape(-1)
-    Xf = X.reshape(-1)
+    x = flat(positions)
+    im = flat(images)
+    r = flat(ref)
+    Xf = flat(X)
     c00, c01, c02 = cell[0, 0], cell[0, 1], cell[0, 2]
     c10, c11, c12 = cell[1, 0], cell[1, 1], cell[1, 2]
     c20, c21, c22 = cell[2, 0], cell[2, 1], cell[2, 2]

@@ -44,7 +44,7 @@ import numpy as np
 from numba import prange
 
 from .pairfunctions import lennard_jones_shifted_r2, lennard_jones_smooth_r2, morse
-from .pairlist import pair_vector
+from .pairlist import flat, pair_vector
 from .chunks import local_rank
 from .parallel import serial_and_parallel, use_threads
 
@@ -173,10 +173,10 @@ def _pair_sum(pair, lst, code, pot, chunks, out):
     # 14% on an Intel Ice Lake (108,000 argon atoms, one thread: 47.8 ->
     # 41.3 ms), with the same bits.
     U = numba.uint64
-    Xf = X.reshape(-1)
-    sv = svec.reshape(-1)
-    fb = fbuf.reshape(-1)
-    vb = vbuf.reshape(-1)
+    Xf = flat(X)
+    sv = flat(svec)
+    fb = flat(fbuf)
+    vb = flat(vbuf)
     for c in prange(nchunk):
         thread[c] = numba.get_thread_id()
         base = offset[c]
@@ -290,7 +290,7 @@ def _pair_sum(pair, lst, code, pot, chunks, out):
     # sum the windows covering each rank in chunk order, back in atom order;
     # pieces of ranks, each walking the segments it crosses
     npiece = nchunk
-    ff = forces.reshape(-1)
+    ff = flat(forces)
     for piece in prange(npiece):
         t0 = piece * n // npiece
         t1 = (piece + 1) * n // npiece
