@@ -125,3 +125,19 @@ def test_bench_md_memory_table():
         assert r["MD steps (list builds)"].endswith("(2)"), r   # through a rebuild
     if "asap3" in engines:
         assert any(r["engine"] == "asap3" for r in mem)
+
+
+def test_lammps_build_counts_are_per_run(tmp_path):
+    # LAMMPS prints the running count of list builds since it started, not
+    # the run's: read as the run's own, it made LAMMPS rebuild twice as
+    # often as it did (5 "builds" in a 50-step run that had 2)
+    sys.path.insert(0, os.path.dirname(SCRIPT))
+    import bench_lammps
+    breakdown = "\n".join(f"{name} | 0.1 | 0.2 | 0.3 | 0.0 | 10.0" for name in bench_lammps.SECTIONS)
+    log = ("Loop time of 0.0 on 1 procs for 0 steps\nNeighbor list builds = 4\n"
+           "Loop time of 2.0 on 1 procs for 50 steps\nMPI task timing breakdown:\n"
+           f"{breakdown}\nNeighbor list builds = 7\n")
+    assert bench_lammps.lammps_breakdown(log)["builds"] == 3
+    path = tmp_path / "lammps.log"
+    path.write_text("Neighbor list builds = 0\nNeighbor list builds = 4\nNeighbor list builds = 7\n")
+    assert bench_lammps.lammps_builds(path) == [0, 4, 3]

@@ -91,9 +91,19 @@ def lammps_start(atoms, threads, ensemble, log):
     return lmp
 
 
+def _build_counts(text):
+    """The "Neighbor list builds" counts of a LAMMPS log: LAMMPS prints the
+    count since the instance started, not the run's (measured: ``run 100``
+    then ``run 5`` printed 4 then 5), after every run with ``post yes``."""
+    return [int(b) for b in re.findall(r"Neighbor list builds = (\d+)", text)]
+
+
 def lammps_builds(log):
+    """List builds of each run of a log that prints every run's count (the
+    differences of LAMMPS's running count)."""
     with open(log) as f:
-        return [int(b) for b in re.findall(r"Neighbor list builds = (\d+)", f.read())]
+        counts = _build_counts(f.read())
+    return [b - a for a, b in zip([0] + counts[:-1], counts)]
 
 
 def lammps_breakdown(text):
@@ -114,8 +124,10 @@ def lammps_breakdown(text):
     for name in SECTIONS:
         m = re.search(rf"^{name}\s*\|[^|\n]*\|\s*([0-9.eE+-]+)\s*\|", rest[head:], re.M)
         out[name] = None if m is None else 1e3 * float(m.group(1)) / max(steps, 1)
-    b = re.search(r"Neighbor list builds = (\d+)", rest)
-    out["builds"] = None if b is None else int(b.group(1))
+    # the run's builds: its running count less the count printed before it
+    # (bench_lammps prints one with a zero-step run just before)
+    counts = _build_counts(text)
+    out["builds"] = counts[-1] - counts[-2] if len(counts) >= 2 else None
     return out
 
 
@@ -132,6 +144,9 @@ def bench_lammps(atoms, p, tmp):
     warm_s = now() - t
     md_ms = time_md(lambda k: lmp.command(f"run {k} pre no post no"), p["steps"], p["repeats"])
     nsteps = p["steps"] * p["repeats"]
+    # a zero-step run prints the running count of list builds (no build):
+    # the breakdown run's builds are the difference
+    lmp.command("run 0 pre no post yes")
     lmp.command(f"run {nsteps} pre no post yes")
     lmp.close()
     with open(log) as f:

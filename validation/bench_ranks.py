@@ -95,6 +95,7 @@ def worker_lammps(natoms, steps, warm, tmp):
     lmp.command(f"run {steps} pre no post no")
     comm.Barrier()
     wall = now() - t
+    lmp.command("run 0 pre no post yes")  # the running count of list builds
     lmp.command(f"run {steps} pre no post yes")
     mem = comm.allgather(maxrss_mb())
     lmp.close()
