@@ -2,6 +2,7 @@
 scene (LJ argon, its constants and its fcc start), timing helpers, the
 statistics of several processes per figure, and the markdown table printer."""
 
+import platform
 import resource
 import time
 
@@ -19,6 +20,32 @@ LATTICE, MASS = 5.72, 39.948                     # Å, amu
 T_K, DT_FS = 90.0, 5.0                           # K, fs
 MOVE = 0.01                                      # Å rms, the "small move"
 P_BAR, TDAMP_FS, PDAMP_FS = 1.0, 100.0, 1000.0   # NPT settings
+
+
+def cpu_model():
+    """The CPU a figure was measured on, as the kernel's speed depends on it
+    (issue 24.3: the same pair kernel ran at 0.94x LAMMPS's Pair on one
+    x86-64 and 1.30x on another): lscpu's model name, family and model, the
+    SIMD flags the compiler may use, and the CPU LLVM (numba) compiles for."""
+    fields = {}
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f.read().split("\n\n")[0].splitlines():
+                if ":" in line:
+                    k, v = line.split(":", 1)
+                    fields[k.strip()] = v.strip()
+    except OSError:
+        pass
+    flags = set(fields.get("flags", "").split())
+    simd = [x for x in ("avx2", "fma", "avx512f", "avx512vl") if x in flags]
+    try:
+        import llvmlite.binding as llvm
+        target = llvm.get_host_cpu_name()
+    except Exception:  # noqa: BLE001 -- a description, never a failure
+        target = "?"
+    return (f"{fields.get('model name', platform.processor() or '?')} (family "
+            f"{fields.get('cpu family', '?')} model {fields.get('model', '?')}; "
+            f"{' '.join(simd) or 'no AVX2'}; LLVM target {target})")
 
 
 # --------------------------------------------------------------------- scenes

@@ -67,7 +67,6 @@ import importlib
 import json
 import os
 import platform
-import re
 import subprocess
 import sys
 import tempfile
@@ -77,7 +76,7 @@ from ase import units
 
 from bench_common import (DT_FS, EPS, LATTICE, MOVE, P_BAR, PDAMP_FS, RC, SIGMA, SKIN, T_K,
                           TDAMP_FS, distinct, fcc_argon, fcc_argon_size, first_error, fmt,
-                          maxrss_mb, median_of, now, ok, pooled, ratio, spread, table)
+                          maxrss_mb, median_of, now, ok, pooled, ratio, spread, table, cpu_model)
 from bench_engines import (TEMPLATE, asap3_calc, bench_ase, bench_asap3, bench_ase_mlg,
                            install_facts, liquid_argon, memory_mlg, mlg_calc, npt_python,
                            own_verlet, threading_report)
@@ -99,11 +98,7 @@ def mlg_facts_and_warmup(p):
     facts = {"python": platform.python_version(), "ase": ase.__version__,
              "numba": numba.__version__, "numpy": np.__version__,
              "cpu_count": os.cpu_count(), "affinity": len(os.sched_getaffinity(0))}
-    try:
-        with open("/proc/cpuinfo") as f:
-            facts["cpu"] = re.search(r"model name\s*:\s*(.*)", f.read()).group(1)
-    except (OSError, AttributeError):
-        facts["cpu"] = platform.processor() or "?"
+    facts["cpu"] = cpu_model()
     t = now()
     importlib.import_module("ase_mlg")  # the import itself is timed
     warm = {"import_s": now() - t}

@@ -22,7 +22,6 @@ launches; spread = max / min.
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 
@@ -30,15 +29,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-
-
-def _cpu():
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True).stdout
-        return next(line.split(":", 1)[1].strip() for line in out.splitlines()
-                    if line.startswith("Model name"))
-    except Exception:  # noqa: BLE001
-        return platform.processor() or "unknown"
+from bench_common import cpu_model  # noqa: E402 (after the path)
 
 
 def worker_mlg(natoms, steps, warm):
@@ -140,7 +131,7 @@ def main():
     if a.worker == "lammps":
         return worker_lammps(a.atoms, a.steps, a.warm, a.tmp)
     from bench_common import fcc_argon_size
-    print(f"# MD across ranks, {_cpu()}, {os.cpu_count()} cores; ms per 5 fs NVE step, "
+    print(f"# MD across ranks, {cpu_model()}, {os.cpu_count()} cores; ms per 5 fs NVE step, "
           f"{a.steps} steps after {a.warm}, median of {a.procs} launches (spread max/min)")
     configs = [("lammps", 1, 1), ("lammps", 2, 1), ("mlg", 1, 1), ("mlg", 2, 1), ("mlg", 1, 2)]
     raw = {}
@@ -178,7 +169,7 @@ def main():
               f"1 rank x 2 threads: {m2 / mt:.2f}x the time")
     if a.json:
         with open(a.json, "w") as f:
-            json.dump({"cpu": _cpu(), "steps": a.steps, "results": raw}, f, indent=1)
+            json.dump({"cpu": cpu_model(), "steps": a.steps, "results": raw}, f, indent=1)
 
 
 if __name__ == "__main__":

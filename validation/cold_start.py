@@ -104,17 +104,8 @@ def main(argv=None):
     ap.add_argument("--no-demo", action="store_true", help="skip ase-mlg demo")
     a = ap.parse_args(argv)
     import ase_mlg
-    fields = {}
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f.read().splitlines()[:30]:
-                if ":" in line:
-                    k, v = line.split(":", 1)
-                    fields[k.strip()] = v.strip()
-    except OSError:
-        pass
-    cpu = (f"{fields.get('model name', platform.processor() or '?')}, family "
-           f"{fields.get('cpu family', '?')} model {fields.get('model', '?')}")
+    from bench_common import cpu_model
+    cpu = cpu_model()
     print(f"# Cold start: python {platform.python_version()}, numba "
           f"{__import__('numba').__version__}, ase_mlg from {os.path.dirname(ase_mlg.__file__)}")
     print(f"# CPU: {cpu}; {os.cpu_count()} cores; {a.procs} fresh processes per figure "
