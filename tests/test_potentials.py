@@ -19,6 +19,7 @@ from ase.stress import full_3x3_to_voigt_6_stress
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from ase_mlg import MLGCalculator
 from ase_mlg import potentials as P
 from ase_mlg.pairsum import (PairError, SumList, SumTables,
                              first_bad_pair, is_built_in, pair_kernel)
@@ -471,22 +472,25 @@ def test_kernel_is_loaded_from_cache_in_a_new_process():
 
 def test_sum_pairs_takes_row_chunks_or_none():
     # the calculator's entry point: chunks are a RowChunks of the list (or
-    # None for row_chunks); a bare count is refused, not silently used
-    atoms = fcc_ar(1, rattle=0.1)
-    i, j, D, _ = half_list(atoms, AR['rc'])
+    # None for row_chunks); a bare count is refused, not silently used.  On
+    # the calculator's own list (one-byte image codes): a list with a code
+    # per pair (int32) compiled a kernel for this test alone, 18 s of CI
+    atoms = fcc_ar(3, rattle=0.1)
     pot = LennardJones(**AR)
-    n = len(atoms)
-    perm = np.argsort(i, kind='stable')
-    rowptr = np.zeros(n + 1, np.int64)
-    np.cumsum(np.bincount(i, minlength=n), out=rowptr[1:])
-    args = (np.zeros((n, 3)), np.zeros(n, np.int32), rowptr,
-            j[perm].astype(np.int32), perm.astype(np.int32), D, np.arange(n))
-    ref = pot.evaluate(atoms.numbers, i, j, D)
-    for chunks in (None, RowChunks(rowptr, args[3], 3)):
+    atoms.calc = MLGCalculator(pot)
+    atoms.get_forces()
+    vl = atoms.calc.verlet_list
+    pl = vl.pairs
+    args = (vl.X, vl.types, pl.rowptr, pl.nbr, pl.code, vl.svec, pl.order)
+    ase = atoms.copy()
+    ase.calc = AseLJ(**AR)
+    for chunks in (None, RowChunks(pl.rowptr, pl.nbr, 3)):
         res = pot.sum_pairs(*args, energies=True, chunks=chunks)
-        assert res['energy'] == pytest.approx(ref['energy'], rel=1e-13)
-        np.testing.assert_allclose(res['forces'], ref['forces'], rtol=1e-12,
-                                   atol=1e-15)
+        assert res['energy'] == pytest.approx(ase.get_potential_energy(), rel=1e-12)
+        np.testing.assert_allclose(res['forces'], ase.get_forces(), rtol=1e-10,
+                                   atol=1e-13)
+        np.testing.assert_allclose(res['energies'], ase.get_potential_energies(),
+                                   rtol=1e-10, atol=1e-13)
     with pytest.raises(TypeError, match='RowChunks'):
         pot.sum_pairs(*args, chunks=3)
 
