@@ -24,6 +24,7 @@ from ase_mlg import potentials as P
 from ase_mlg.pairsum import (PairError, SumList, SumTables,
                              first_bad_pair, is_built_in, pair_kernel)
 from ase_mlg.chunks import RowChunks
+from ase_mlg.pairfunctions import lennard_jones_shifted_r2, morse
 from ase_mlg.potentials import (LennardJones, Morse, PairPotential,
                                 lennard_jones_mixture)
 
@@ -451,6 +452,17 @@ def test_built_in_kernels_are_cached_user_kernels_compiled_once():
     assert len(generic.func.overloads) >= 1
     # every user pair function goes through the one generic dispatcher
     assert pair_kernel(blows_up, False).func is generic.func
+
+
+def test_built_in_pair_function_in_the_wrong_form_is_refused():
+    # the built-in kernels have the pair function's form compiled in: a
+    # table claiming the other form would be read as the wrong distance
+    with pytest.raises(ValueError, match=r'lennard_jones_shifted_r2 takes '
+                       r'r\*\*2: squared=True, got squared=False'):
+        PairPotential(lennard_jones_shifted_r2, [3.4, 0.01, 0.0], 8.5)
+    with pytest.raises(ValueError, match=r'morse takes r: squared=False'):
+        PairPotential(morse, [1.0, 3.0, 6.0, 4.0, 5.0], 5.0, squared=True)
+    assert PairPotential(morse, [1.0, 3.0, 6.0, 4.0, 5.0], 5.0).squared is False
 
 
 def test_kernel_is_loaded_from_cache_in_a_new_process():
