@@ -48,8 +48,8 @@ from .pairlist import flat, pair_vector
 from .chunks import local_rank
 from .parallel import serial_and_parallel, use_threads
 
-__all__ = ["SumList", "SumTables", "SumOutputs", "PairError", "BUILT_IN_SQUARED",
-           "pair_kernel", "is_built_in", "first_bad_pair",
+__all__ = ["SumList", "SumTables", "SumOutputs", "PairError",
+           "pair_kernel", "is_built_in", "built_in_form", "first_bad_pair",
            "shift_vectors", "pair_vectors"]
 
 
@@ -124,7 +124,7 @@ def _pair_sum(pair, squared, lst, code, pot, chunks, out):
         Or ``(r**2, p) -> (e, dE/dr / r)`` with ``squared``.
     squared : bool
         ``pot.squared``, passed on its own so that the built-in entry points
-        can pass it as a constant: the branch then leaves the loop (7 % of
+        can pass it as a constant: the branch then leaves the loop (3 % of
         the loop on AMD Zen 4 with the per-pair row below).
     lst : SumList
     code : uint8[M] or int32[M]
@@ -461,20 +461,24 @@ def _sum_morse(lst, code, pot, chunks, out):
     _pair_sum_inline(morse, False, lst, code, pot, chunks, out)
 
 
+# pair function -> (its form, as its entry point above passes it; the twins)
 _FLAGS = dict(nogil=True, error_model='numpy')
-_BUILT_IN = {lennard_jones_shifted_r2: serial_and_parallel(_sum_lj_shifted, **_FLAGS),
-             lennard_jones_smooth_r2: serial_and_parallel(_sum_lj_smooth, **_FLAGS),
-             morse: serial_and_parallel(_sum_morse, **_FLAGS)}
-#: The form each built-in pair function takes (``squared``), fixed in its
-#: entry point above.
-BUILT_IN_SQUARED = {lennard_jones_shifted_r2: True, lennard_jones_smooth_r2: True,
-                    morse: False}
+_BUILT_IN = {lennard_jones_shifted_r2: (True, serial_and_parallel(_sum_lj_shifted, **_FLAGS)),
+             lennard_jones_smooth_r2: (True, serial_and_parallel(_sum_lj_smooth, **_FLAGS)),
+             morse: (False, serial_and_parallel(_sum_morse, **_FLAGS))}
 
 
 def is_built_in(pair):
     """Whether ``pair`` has a cached kernel of its own (the pair functions
     of :mod:`ase_mlg.pairfunctions` that the built-in potentials use)."""
     return pair in _BUILT_IN
+
+
+def built_in_form(pair):
+    """``squared`` as compiled into the cached kernel of the built-in pair
+    function ``pair`` (True: it takes ``r**2``), or None for any other."""
+    entry = _BUILT_IN.get(pair)
+    return None if entry is None else entry[0]
 
 
 def pair_kernel(pair, threaded):
@@ -499,7 +503,7 @@ def pair_kernel(pair, threaded):
         kernel's dispatcher (``.func``), compiled on first use in each
         process.
     """
-    twins = _BUILT_IN.get(pair)
-    if twins is not None:
-        return twins[bool(threaded)]
+    entry = _BUILT_IN.get(pair)
+    if entry is not None:
+        return entry[1][bool(threaded)]
     return functools.partial(_GENERIC[bool(threaded)], pair)

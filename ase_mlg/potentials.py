@@ -80,8 +80,8 @@ from numba.core.dispatcher import Dispatcher
 
 from .pairfunctions import (lennard_jones_shifted, lennard_jones_shifted_r2,
                             lennard_jones_smooth, lennard_jones_smooth_r2, morse)
-from .pairsum import (BUILT_IN_SQUARED, PairError, SumList, SumOutputs,
-                      SumTables, first_bad_pair, is_built_in, pair_kernel)
+from .pairsum import (PairError, SumList, SumOutputs, SumTables, built_in_form,
+                      first_bad_pair, is_built_in, pair_kernel)
 from .parallel import dynamic_schedule
 from .chunks import RowChunks, row_chunks
 
@@ -210,7 +210,7 @@ class PairPotential:
         self.pair = pair
         self.squared = bool(squared)
         # a built-in pair function's kernel has its form compiled in
-        form = BUILT_IN_SQUARED.get(pair)
+        form = built_in_form(pair)
         if form is not None and form != self.squared:
             raise ValueError(f'pair function {pair.__name__} takes '
                              f'{"r**2" if form else "r"}: squared={form}, '

@@ -114,8 +114,8 @@ def instrument(calc):
     timed(vl, "kept", "kept")
     timed(pot, "sum_pairs", "sum_pairs")
     import ase_mlg.pairsum as ps
-    twins = ps._BUILT_IN[pot.pair]
-    ps._BUILT_IN[pot.pair] = tuple(_timed_kernel(k, phases["kernel"]) for k in twins)
+    form, twins = ps._BUILT_IN[pot.pair]
+    ps._BUILT_IN[pot.pair] = (form, tuple(_timed_kernel(k, phases["kernel"]) for k in twins))
     return phases
 
 
