@@ -23,7 +23,8 @@ compare.
 * ``template=None`` lists come from the exact query (:mod:`ase_mlg.query`,
   docs/design.md §6), or below :data:`ase_mlg.allpairs.MAX_WORK` tested
   images (a few hundred atoms; the default ``block`` only) from every atom
-  pair tested (:func:`ase_mlg.allpairs.half_pairs`: the same pairs);
+  pair tested (:func:`ase_mlg.allpairs.half_pairs`: the same pairs, rows
+  in atom order, no grid built or followed: :meth:`VerletList.build`);
   ``template=W`` from Boris's W x W x W half template
   (:mod:`ase_mlg.template`, approximate, docs/design.md §7).
 
@@ -41,7 +42,7 @@ import numpy as np
 
 from .allpairs import half_pairs
 from .blocks import BlockIndex, block_for_radius
-from .geometry import same
+from .geometry import Box, same
 from .pairsum import shift_vectors
 from .chunks import row_chunks
 from .pairlist import PairList
@@ -165,7 +166,7 @@ class VerletList:
         """Forget the list and the grid: the next update builds both."""
         self._tracker.reset()
         self.pairs = self.X = self.svec = self.types = self.width = None
-        self._chunks = self._ref = self._spare = self._svec_key = None
+        self._chunks = self._ref = self._spare = self._svec_key = self._built = None
 
     @property
     def cutoff(self):
@@ -186,8 +187,18 @@ class VerletList:
 
     @property
     def grid(self):
-        """The :class:`~ase_mlg.grid.MLG` of the last build (None before)."""
+        """The :class:`~ase_mlg.grid.MLG` of the last build (None before).
+        A small system's exact list is built without one (:meth:`build`):
+        asked for, the grid of that build's positions is built then, and
+        followed from there by later builds that need one."""
+        if self._tracker.grid is None and self._built is not None:
+            self._tracker.follow(*self._built)
         return self._tracker.grid
+
+    @property
+    def positions(self):
+        """The positions of the last build (float64 C, Å, atom order)."""
+        return self._built[0] if self._built is not None else self._tracker.grid.positions
 
     @property
     def stats(self):
@@ -284,50 +295,40 @@ class VerletList:
         and new ghosts): the grid is then built anew, since following it
         would sweep nearly every atom to its new label (measured at 2 ranks
         of 108,000 atoms: 3.6 million swaps, 108 ms, against 35 ms for a
-        new grid)."""
+        new grid).
+
+        An exact list (``template=None``) of a small system comes from
+        every atom pair tested (:func:`~ase_mlg.allpairs.half_pairs`), rows
+        in atom order, and no grid is built or followed for it: below a few
+        hundred atoms the MLG's order buys no locality that the caches do
+        not already give, and its construction was a quarter of a first
+        force call (1.9 of 8.3 s compiling) and most of a rebuild.
+        :attr:`grid` builds one on request."""
         t0 = time.perf_counter()
         if not same_atoms:
             self._tracker.reset()
         cell = np.asarray(cell, dtype=np.float64)
         old = self.pairs if self.pairs is not None else self._spare
         self.pairs = self._chunks = self._spare = None
-        self.X = self.svec = self._ref = self._svec_key = None
-        grid = self._tracker.follow(positions, cell, pbc)
-        positions = grid.positions  # the same numbers, as float64 C arrays
-        t1 = time.perf_counter()
-        self.timings["grid"] += t1 - t0
+        self.X = self.svec = self._ref = self._svec_key = self._built = None
         template = self.template
-        self.width = template(grid, numbers) if callable(template) else template
-        n = grid.natoms
-        inner_first = False  # whether the rows hold the pairs within the cutoff first
         pl = None
-        if self.width is None and self.block is None:
-            pl = self._small_list(grid, cell, pbc)
-            inner_first = pl is not None
-        if pl is None:
-            if self.radii is not None:
-                rmax = float(self.radii.max()) if n else 0.0
-                rat, hint = self.radii + rmax, None
-            else:
-                rat = np.full(n, self.rlist)
-                hint = None if old is None or old.natoms != n else len(old) / max(n, 1)
-            index = BlockIndex(grid, block_for_radius(grid, float(rat.max(initial=0.0)))
-                               if self.block is None else self.block)
-            if self.width is not None:
-                i, j, S, _ = template_pairs(grid, self.width, self.rlist)
-                pl = pair_list(index, i, j, S)
-            elif self.radii is not None:
-                pl = half_list(index, rat, CUT_RADII, radii=self.radii,
-                               self_interaction=self.self_interaction, reuse=old)
-            else:
-                # pairs within the cutoff first in each row, straight from
-                # the scan, where the list holds others
-                split = None if self.rlist == self.cutoff else self.cutoff
-                pl = half_list(index, rat, cut=self.rlist,
-                               self_interaction=self.self_interaction,
-                               pairs_per_atom=hint, reuse=old, split=split)
-                inner_first = True
-            del index
+        if template is None and self.block is None:
+            # a copy: the caller's array moves on (an MD step writes it in place)
+            x = np.array(positions, dtype=np.float64, order="C")
+            pl = self._small_list(x, None, cell, pbc)
+        if pl is not None:
+            # no grid: a grid kept from a larger system would be stale
+            self._tracker.reset()
+            self._built = (x, cell.copy(), np.array(pbc, dtype=bool))
+            self.width, positions = None, x
+            inner_first = True
+        else:
+            grid = self._tracker.follow(positions, cell, pbc)
+            positions = grid.positions  # the same numbers, as float64 C arrays
+            self.timings["grid"] += time.perf_counter() - t0
+            self.width = template(grid, numbers) if callable(template) else template
+            pl, inner_first = self._grid_list(grid, old, cell, pbc)
         del old
         self.pairs = pl
         if not inner_first and self.radii is None and self.rlist != self.cutoff:
@@ -344,16 +345,47 @@ class VerletList:
         self.timings["list_build"] += time.perf_counter() - t0
         return pl
 
-    def _small_list(self, grid, cell, pbc):
+    def _grid_list(self, grid, old, cell, pbc):
+        """The list on ``grid``: ``(PairList, inner_first)``, ``inner_first``
+        whether each row holds the pairs within the cutoff first."""
+        n = grid.natoms
+        if self.width is None and self.block is None:
+            # an auto template that chose the exact query, on a small system
+            pl = self._small_list(grid.positions, grid.sites.ravel(), cell, pbc)
+            if pl is not None:
+                return pl, True
+        if self.radii is not None:
+            rmax = float(self.radii.max()) if n else 0.0
+            rat, hint = self.radii + rmax, None
+        else:
+            rat = np.full(n, self.rlist)
+            hint = None if old is None or old.natoms != n else len(old) / max(n, 1)
+        index = BlockIndex(grid, block_for_radius(grid, float(rat.max(initial=0.0)))
+                           if self.block is None else self.block)
+        if self.width is not None:
+            i, j, S, _ = template_pairs(grid, self.width, self.rlist)
+            return pair_list(index, i, j, S), False
+        if self.radii is not None:
+            return half_list(index, rat, CUT_RADII, radii=self.radii,
+                             self_interaction=self.self_interaction, reuse=old), False
+        # pairs within the cutoff first in each row, straight from the
+        # scan, where the list holds others
+        split = None if self.rlist == self.cutoff else self.cutoff
+        return half_list(index, rat, cut=self.rlist, self_interaction=self.self_interaction,
+                         pairs_per_atom=hint, reuse=old, split=split), True
+
+    def _small_list(self, x, sites, cell, pbc):
         """The list of a small system, every atom pair tested
-        (:func:`ase_mlg.allpairs.half_pairs`: the exact query's pairs), in
-        the grid's site order, or None above its size.  Where the exact
-        query's set-up (the block index, the scan's room and codes) costs
-        more than the pairs, and on a first call its compilation (8 of a
-        256-atom force call's 11 s), this path answers in one kernel."""
+        (:func:`ase_mlg.allpairs.half_pairs`: the exact query's pairs), rows
+        in atom order (``sites`` None) or in the grid's site order, or None
+        above its size or where a position is not finite (the grid names
+        the atoms).  Where the exact query's set-up (the block index, the
+        scan's room and codes) costs more than the pairs, and on a first
+        call its compilation, this path answers in one kernel."""
+        if not np.isfinite(x).all():
+            return None
         cut = ((CUT_RADII, 0.0, self.radii, None, None) if self.radii is not None
                else (CUT_SCALAR, self.rlist, None, None, None))
-        x = grid.positions
         pairs = half_pairs(x, cell, pbc, cut, self.self_interaction)
         if pairs is None:
             return None
@@ -364,8 +396,10 @@ class VerletList:
             D = x[j] - x[i] + S @ cell
             first = np.argsort(np.einsum("ij,ij->i", D, D) > self.cutoff ** 2, kind="stable")
             i, j, S = i[first], j[first], S[first]
-        sites = grid.sites.ravel()
-        order = np.ascontiguousarray(sites[sites >= 0], dtype=np.int64)
+        if sites is None:
+            order = np.arange(len(x), dtype=np.int64)
+        else:
+            order = np.ascontiguousarray(sites[sites >= 0], dtype=np.int64)
         return PairList.from_pairs(order, np.zeros((len(order), 3), np.int64), i, j, S)
 
     def rebuild(self, positions, cell, pbc, numbers=None, same_atoms=True):
@@ -375,7 +409,7 @@ class VerletList:
         self.build(positions, cell, pbc, numbers, same_atoms=same_atoms)
         t0 = time.perf_counter()
         if self.X is None:
-            self._gather(self.grid.positions, cell)
+            self._gather(self.positions, cell)
         self.timings["list_build"] += time.perf_counter() - t0
 
     def _gather(self, positions, cell):
@@ -406,6 +440,10 @@ class VerletList:
     def arrays(self, half=False, quantities="ijdDS", orient=None):
         """The list as ``ase.neighborlist`` returns it, at the positions
         and cell of the last build (see :meth:`ase_mlg.pairlist.PairList.arrays`)."""
-        grid = self.grid
-        return self.pairs.arrays(grid.positions, np.ascontiguousarray(grid.box.full),
+        if self._built is not None:
+            x, cell, pbc = self._built
+            full = Box(cell, pbc).full
+        else:
+            x, full = self._tracker.grid.positions, self._tracker.grid.box.full
+        return self.pairs.arrays(x, np.ascontiguousarray(full),
                                  half=half, quantities=quantities, orient=orient)

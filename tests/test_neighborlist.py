@@ -384,7 +384,8 @@ def test_neighborlist_matches_ase_over_md_steps(n, pbc, bothways, self_int,
 
 def test_neighborlist_keeps_one_grid():
     rng = np.random.default_rng(1)
-    atoms = bulk("Cu", "fcc", a=3.61, cubic=True) * 3
+    # 1,372 atoms: beyond allpairs.MAX_WORK, the lists are the grid's
+    atoms = bulk("Cu", "fcc", a=3.61, cubic=True) * 7
     nlist = nl.NeighborList([1.4] * len(atoms), skin=0.2, bothways=True,
                             self_interaction=False)
     nlist.update(atoms)

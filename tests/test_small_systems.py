@@ -337,8 +337,8 @@ def test_verlet_list_builds_small_systems_with_the_block_querys_pairs(
     """Below MAX_WORK the Verlet list's exact builds come from
     allpairs.half_pairs: the same set of pairs as the block query's (the
     list with an explicit block), each unordered pair once, rows in the
-    MLG's site order, and (with a skin) each row's pairs within the cutoff
-    first."""
+    atoms' order with no grid built (one is built when asked for), and
+    (with a skin) each row's pairs within the cutoff first."""
     from ase_mlg.verletlist import VerletList
     skin = 0.0 if np.ndim(cutoff) else 0.7
     pos, cell = atoms.positions, atoms.cell.array
@@ -350,8 +350,9 @@ def test_verlet_list_builds_small_systems_with_the_block_querys_pairs(
     rows = naive.atom_pairs(small.pairs)
     assert len(np.unique(rows, axis=0)) == len(rows), "a pair is listed twice"
     np.testing.assert_array_equal(rows, naive.atom_pairs(large.pairs))
-    sites = small.grid.sites.ravel()
-    np.testing.assert_array_equal(small.pairs.order, sites[sites >= 0])
+    np.testing.assert_array_equal(small.pairs.order, np.arange(len(atoms)))
+    assert small.stats["grid_builds"] == 0 and large.stats["grid_builds"] == 1
+    assert small.grid.natoms == len(atoms) and small.stats["grid_builds"] == 1
     assert (small.pairs.images == 0).all()
     if skin:
         pl = small.pairs
