@@ -240,7 +240,7 @@ class PairPotential:
         self.rmin = np.full((1, 1), _number('rmin', rmin, 0.0))
         # Every element maps to type 0.
         self._type_of = np.zeros(len(chemical_symbols), dtype=np.int32)
-        self._check_rmin()
+        self._validate_rmin()
 
     def _init_species(self, params, cutoffs, rmin):
         rows = {zz: _row(v, f'params{_pair_name(*zz)}')
@@ -270,7 +270,7 @@ class PairPotential:
             self.params[index[zb], index[za]] = row
         self._type_of = np.full(len(chemical_symbols), -1, dtype=np.int32)
         self._type_of[zs] = np.arange(ntypes, dtype=np.int32)
-        self._check_rmin()
+        self._validate_rmin()
 
     @staticmethod
     def _pair_table(values, what, index, pairs, required):
@@ -296,7 +296,7 @@ class PairPotential:
             table[index[zz[1]], index[zz[0]]] = x
         return table
 
-    def _check_rmin(self):
+    def _validate_rmin(self):
         bad = np.argwhere(self.rmin >= self.cutoffs)
         if len(bad):
             ta, tb = bad[0]
@@ -494,7 +494,11 @@ class PairPotential:
                             f'of this list or None, got {chunks!r}')
         nchunk = chunks.nchunk
         threaded = nchunk > 1 and numba.get_num_threads() > 1
-        kernel = pair_kernel(self.pair, threaded=threaded)
+        # one species' forces and energy (an MD step) take the kernel
+        # compiled without the rest
+        general = bool(virial or virials or energies or self._check_rmin
+                       or self.params.shape[0] > 1)
+        kernel = pair_kernel(self.pair, threaded, general)
         lst = SumList(X, types, rowptr, nbr, svec, order)
         pot = SumTables(self.squared, self.params, self._cut2, self._rmin2,
                          self._check_rmin, bool(virial or virials))

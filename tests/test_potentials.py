@@ -454,6 +454,25 @@ def test_built_in_kernels_are_cached_user_kernels_compiled_once():
     assert pair_kernel(blows_up, False).func is generic.func
 
 
+def test_forces_only_kernel_gives_the_general_kernels_bits():
+    # one species' forces and energy run a kernel compiled without species
+    # tables, the rmin count, the virial and per-atom outputs; it must give
+    # the general kernel's bits, and every call that needs one of those
+    # must take the general kernel
+    atoms = liquid_ar()
+    for pot in [*BUILT.values(), LennardJones(smooth=True),
+                PairPotential(soft, [1.0, 2.0], 5.0)]:
+        lean, full = atoms.copy(), atoms.copy()
+        lean.calc, full.calc = MLGCalculator(pot), MLGCalculator(pot)
+        f = lean.get_forces()
+        props = full.get_properties(['forces', 'energy', 'stress', 'energies'])
+        assert np.array_equal(f, props['forces']), pot
+        assert lean.get_potential_energy() == props['energy'], pot
+        for threaded in (False, True):
+            assert pair_kernel(pot.pair, threaded, False) is not pair_kernel(
+                pot.pair, threaded, True)
+
+
 def test_built_in_pair_function_in_the_wrong_form_is_refused():
     # the built-in kernels have the pair function's form compiled in: a
     # table claiming the other form would be read as the wrong distance
@@ -562,6 +581,11 @@ def test_below_rmin():
     with pytest.raises(ValueError, match=r'atoms 1 and 0 at distance 0.5 '
                                          r'Å: closer than rmin 1.0'):
         pot.evaluate([1, 1], [1], [0], [[0.5, 0, 0]])
+    # forces alone (an MD step's call) take the kernel that counts them too
+    dimer = Atoms('H2', positions=[[0, 0, 0], [0.5, 0, 0]])
+    dimer.calc = MLGCalculator(pot)
+    with pytest.raises(ValueError, match=r'at distance 0.5 Å: closer than rmin 1.0'):
+        dimer.get_forces()
 
 
 @numba.njit(error_model='numpy')

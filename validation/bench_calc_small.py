@@ -114,8 +114,10 @@ def instrument(calc):
     timed(vl, "kept", "kept")
     timed(pot, "sum_pairs", "sum_pairs")
     import ase_mlg.pairsum as ps
-    form, twins = ps._BUILT_IN[pot.pair]
-    ps._BUILT_IN[pot.pair] = (form, tuple(_timed_kernel(k, phases["kernel"]) for k in twins))
+    form, entries = ps._BUILT_IN[pot.pair]
+    ps._BUILT_IN[pot.pair] = (form, {general: tuple(_timed_kernel(k, phases["kernel"])
+                                                    for k in twins)
+                                     for general, twins in entries.items()})
     return phases
 
 

@@ -137,7 +137,7 @@ def worker(n, variant, calls):
     fbuf, ebuf, vbuf = chunks.buffers(False, False)
     out = SumOutputs(fbuf, ebuf, vbuf, np.zeros((chunks.nchunk, 9)), np.empty((n, 3)),
                      np.empty(0), np.empty((0, 6)))
-    kernel = pair_kernel(pot.pair, threaded=False)
+    kernel = pair_kernel(pot.pair, threaded=False, general=False)  # an MD step's
     kernel(lst, pl.code, tab, chunks.arrays, out)
     reference = out.forces[pl.order]  # row order
     if variant == "kernel":
