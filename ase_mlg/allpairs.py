@@ -57,6 +57,8 @@ go to :class:`~ase_mlg.geometry.Box` or the large path, which raise the
 errors the package always raised.
 """
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -76,8 +78,8 @@ __all__ = ["all_pairs", "half_pairs", "MAX_WORK"]
 #: atoms of a metal at 5-6 Å on this path.
 MAX_WORK = 6e5
 
-# statuses of the kernel
-_DONE, _NEEDS_BOX, _NOT_MINE = 0, 1, 2
+# statuses of the kernels
+_DONE, _NOT_MINE = 0, 2
 # a periodic atom further than this many cells out goes to the large path:
 # the image interval's round-off grows with the shift (docs/design.md §6)
 _FAR_CELLS = 1024.0
@@ -99,28 +101,27 @@ def _pair_cutoff(cutoff, i, j):
     return table[types[i], types[j]]
 
 
-@njit(cache=True, no_cpython_wrapper=True)
-def _frame(cell, pbc, frame):
+def _frame(cell, pbc):
     """The completed cell, its inverse and inverse heights, as
-    :class:`~ase_mlg.geometry.Box` completes and checks a cell.
+    :class:`~ase_mlg.geometry.Box` completes and checks a cell: a float64
+    (10, 3) array that nothing writes after this (a writeable array, so
+    that the kernels share one compiled type with the large path's), or None where Box must decide (a non-finite
+    cell, a missing vector (but for no cell at all and no pbc, completed to
+    the identity, as Box does), a volume Box could refuse).
 
-    ``frame[0:3]`` gets the cell the shifts refer to (Box's ``full``),
+    ``frame[0:3]`` is the cell the shifts refer to (Box's ``full``),
     ``frame[3:6]`` its inverse ``B``, ``frame[6]`` the inverse heights ``1
     / h_a = |B[:, a]|`` and ``frame[9, 0]`` the largest residual of ``cell
-    @ B - I``.  Returns False where Box must decide: a non-finite cell, a
-    missing vector (but for no cell at all and no pbc, completed to the
-    identity, as Box does), a volume Box could refuse.  (Scalars, each
-    array element read or written once: every indexing is more for numba
-    to compile on the first call -- this function took 0.7 s written with
-    2-D indexing throughout.)"""
-    a, b, c = cell[0, 0], cell[0, 1], cell[0, 2]
-    d, e, f = cell[1, 0], cell[1, 1], cell[1, 2]
-    g, h, k = cell[2, 0], cell[2, 1], cell[2, 2]
-    l0 = np.sqrt(a * a + b * b + c * c)
-    l1 = np.sqrt(d * d + e * e + f * f)
-    l2 = np.sqrt(g * g + h * h + k * k)
+    @ B - I``.  Plain Python on Python floats (IEEE doubles, the kernels'
+    arithmetic), memoised by :func:`_frame_of`: compiled it was 0.55-0.7 s
+    of every first call, and a cell is the same across most calls."""
+    (a, b, c), (d, e, f), (g, h, k) = cell.tolist()
+    pbc = pbc.tolist()
+    l0 = math.sqrt(a * a + b * b + c * c)
+    l1 = math.sqrt(d * d + e * e + f * f)
+    l2 = math.sqrt(g * g + h * h + k * k)
     if not (l0 - l0 == 0.0 and l1 - l1 == 0.0 and l2 - l2 == 0.0):  # NaN or inf
-        return False
+        return None
     # Box's threshold for a missing vector is 1e-12 of the scale: a length
     # near it is Box's call
     scale = max(max(l0, l1), max(l2, 1.0))
@@ -131,32 +132,33 @@ def _frame(cell, pbc, frame):
         g, h, k = 0.0, 0.0, 1.0
         l0 = l1 = l2 = 1.0
     elif not (l0 > hi and l1 > hi and l2 > hi):
-        return False
+        return None
     # the inverse: cofactors over the determinant
     A, B, C = e * k - f * h, f * g - d * k, d * h - e * g
     det = a * A + b * B + c * C
     # Box refuses below 1e-9 of the vectors' product: near it, Box decides
     if not abs(det) > 2e-9 * l0 * l1 * l2:
-        return False
+        return None
     A, B, C = A / det, B / det, C / det
     D, E, F = (c * h - b * k) / det, (a * k - c * g) / det, (b * g - a * h) / det
     G, H, K = (b * f - c * e) / det, (c * d - a * f) / det, (a * e - b * d) / det
+    frame = np.zeros((10, 3))
     frame[0, 0], frame[0, 1], frame[0, 2] = a, b, c
     frame[1, 0], frame[1, 1], frame[1, 2] = d, e, f
     frame[2, 0], frame[2, 1], frame[2, 2] = g, h, k
     frame[3, 0], frame[3, 1], frame[3, 2] = A, D, G
     frame[4, 0], frame[4, 1], frame[4, 2] = B, E, H
     frame[5, 0], frame[5, 1], frame[5, 2] = C, F, K
-    frame[6, 0] = np.sqrt(A * A + B * B + C * C)
-    frame[6, 1] = np.sqrt(D * D + E * E + F * F)
-    frame[6, 2] = np.sqrt(G * G + H * H + K * K)
+    frame[6, 0] = math.sqrt(A * A + B * B + C * C)
+    frame[6, 1] = math.sqrt(D * D + E * E + F * F)
+    frame[6, 2] = math.sqrt(G * G + H * H + K * K)
     # cell @ inverse - I, the largest entry
     worst = max(abs(a * A + b * B + c * C - 1.0), abs(d * D + e * E + f * F - 1.0))
     worst = max(worst, abs(g * G + h * H + k * K - 1.0))
     worst = max(worst, max(abs(a * D + b * E + c * F), abs(a * G + b * H + c * K)))
     worst = max(worst, max(abs(d * A + e * B + f * C), abs(d * G + e * H + f * K)))
     frame[9, 0] = max(worst, max(abs(g * A + h * B + k * C), abs(g * D + h * E + k * F)))
-    return True
+    return frame
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -172,15 +174,16 @@ def _shifts(df, reach, periodic):
 
 
 @njit(cache=True, no_cpython_wrapper=True)
-def _half_pairs(pos, frame, f, pbc, cutoff, self_interaction, i0, m, store):
+def _half_pairs(pos, frame, pad, f, pbc, cutoff, self_interaction, i0, m, store):
     """The pairs ``i <= j`` within the cutoff, rows ``i0...`` on, in (i, j,
-    S) order, from entry ``m`` of ``store`` (rows ``i, j, S``).  Returns
+    S) order, from entry ``m`` of ``store`` (rows ``i, j, S``); ``pad``
+    pads each axis's shift interval (fractions of a cell).  Returns
     ``(m, i)``: rows before ``i`` are done (``i < n`` when row ``i`` ran
     out of room: grow the store and call again from it)."""
     n = pos.shape[0]
     full = frame[0:3]
     h0, h1, h2 = frame[6, 0], frame[6, 1], frame[6, 2]
-    t0, t1, t2 = frame[7, 0], frame[7, 1], frame[7, 2]
+    t0, t1, t2 = pad[0], pad[1], pad[2]
     p0, p1, p2 = pbc[0], pbc[1], pbc[2]
     for i in range(i0, n):
         start = m
@@ -230,20 +233,16 @@ def _grow(store):
 
 
 @njit(cache=True)
-def _half(pos, cell, pbc, mode, cut, radii, types, table, self_interaction, max_work):
+def _half(pos, frame, pbc, mode, cut, radii, types, table, self_interaction, max_work):
     """The half list, each pair ``i < j`` once, in (i, j, S) order, and an
     atom's pairs with its own images (``i == j``) both as S and -S (the
-    full list writes each once; :func:`half_pairs` keeps one):
-    ``(status, frame, store, m)``, rows ``store[:m]`` = (i, j, S) (a
-    Python entry point too); status
-    ``_NEEDS_BOX`` (the cell is Box's to complete or refuse) or
+    full list writes each once; :func:`half_pairs` keeps one), in the
+    cell of ``frame`` (:func:`_frame`): ``(status, store, m)``, rows
+    ``store[:m]`` = (i, j, S) (a Python entry point too); status
     ``_NOT_MINE`` (the large path's) with ``m = 0``."""
     n = pos.shape[0]
     none = n - n
-    frame = np.empty((10, 3), np.float64)
     idx = np.empty((16 * n + 64, 5), np.int64)
-    if not _frame(cell, pbc, frame):
-        return _NEEDS_BOX, frame, idx, none
     rcmax = cut
     if mode == 1:
         for k in range(n):
@@ -269,39 +268,39 @@ def _half(pos, cell, pbc, mode, cut, radii, types, table, self_interaction, max_
             far |= pbc[a] and not abs(f[k, a]) <= _FAR_CELLS
     if (far or scale > 1e8 * max(rcmax, 1.0) or not images < 1e6
             or not 0.5 * n * (n + 1) * images <= max_work or not frame[9, 0] < 1e-12):
-        return _NOT_MINE, frame, idx, none
+        return _NOT_MINE, idx, none
     # round-off pads every shift interval (fractions of a cell): the
     # coordinates' own (relative 1e-9, as the block query pads) and the
     # inverse's, which grows with the shift
+    pad = np.empty(3, np.float64)
     for a in range(3):
-        frame[7, a] = (1e-9 * (scale + rcmax) * frame[6, a] + 8.0 * max(frame[9, 0], 1e-16)
-                       * (2.0 * _FAR_CELLS + rcmax * frame[6, a] + 2.0))
+        pad[a] = (1e-9 * (scale + rcmax) * frame[6, a] + 8.0 * max(frame[9, 0], 1e-16)
+                  * (2.0 * _FAR_CELLS + rcmax * frame[6, a] + 2.0))
     m, i = none, none
     while True:
-        m, i = _half_pairs(pos, frame, f, pbc, (mode, cut, radii, types, table),
+        m, i = _half_pairs(pos, frame, pad, f, pbc, (mode, cut, radii, types, table),
                            self_interaction, i, m, idx)
         if i == n:
             break
         idx = _grow(idx)
-    return _DONE, frame, idx, m
+    return _DONE, idx, m
 
 
 @njit(cache=True)
-def _all_pairs(pos, cell, pbc, mode, cut, radii, types, table, self_interaction,
+def _all_pairs(pos, frame, pbc, mode, cut, radii, types, table, self_interaction,
                want, max_work):
     """Every pair within the cutoff at both atoms, ordered by (i, j, S).
 
     ``want``: bits 1, 2, 4, 8 for j, d, D, S.  Returns ``(status, i, j, d,
-    D, S)``; status ``_NEEDS_BOX`` or ``_NOT_MINE`` (see :func:`_half`)
-    with empty arrays."""
+    D, S)``; status ``_NOT_MINE`` (see :func:`_half`) with empty arrays."""
     n = pos.shape[0]
     # every array is np.empty of one of four kinds (1-D/2-D, int64/float64):
     # each other numpy call would be one more implementation to compile.
     # No constant is passed to a kernel: numba compiles a callee once more
     # for each literal argument (measured: 0.7 s of a cold start)
     none = n - n
-    status, frame, idx, m = _half(pos, cell, pbc, mode, cut, radii, types, table,
-                                  self_interaction, max_work)
+    status, idx, m = _half(pos, frame, pbc, mode, cut, radii, types, table,
+                           self_interaction, max_work)
     if status != _DONE:
         return (status, np.empty(none, np.int64), np.empty(none, np.int64),
                 np.empty(none, np.float64), np.empty((none, 3), np.float64),
@@ -413,7 +412,7 @@ def half_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False, max_wo
     res = _call(_half, positions, args, (), float(max_work))
     if res is None:
         return None
-    _, store, m = res
+    store, m = res
     i, j, S = store[:m, 0], store[:m, 1], store[:m, 2:]
     # an atom's pairs with its own images come as S and -S: keep one, the
     # lexicographically positive (and S = 0, the self-interaction)
@@ -443,11 +442,11 @@ def _arguments(cell, pbc, pair_cutoff, self_interaction):
 
 
 def _call(kernel, positions, args, tail, max_work):
-    """``kernel``'s arrays (its arguments: ``positions``, ``args``,
-    ``tail``, ``max_work``), once more on Box's completed cell where the
-    kernel asks for it (Box completes a missing vector of an open axis, or
-    raises what the large path raises); None where the large path must
-    answer."""
+    """``kernel``'s arrays (its arguments: ``positions``, the cell's frame,
+    ``args``, ``tail``, ``max_work``), on Box's completed cell where
+    :func:`_frame` leaves the cell to it (Box completes a missing vector of
+    an open axis, or raises what the large path raises); None where the
+    large path must answer."""
     cell, pbc, rest = args
     n = len(positions)
     if 0.5 * n * (n + 1) > max_work:
@@ -455,10 +454,32 @@ def _call(kernel, positions, args, tail, max_work):
         # large path's, without compiling the kernel for nothing (3 s of a
         # first call of 10^4 atoms)
         return None
-    status, *res = kernel(positions, cell, pbc, *rest, *tail, max_work)
-    if status == _NEEDS_BOX:
-        status, *res = kernel(positions, Box(cell, pbc).full, pbc, *rest, *tail, max_work)
+    frame = _frame_of(cell, pbc)
+    if frame is None:
+        frame = _frame_of(np.ascontiguousarray(Box(cell, pbc).full), pbc)
+        if frame is None:
+            return None
+    status, *res = kernel(positions, frame, pbc, *rest, *tail, max_work)
     return res if status == _DONE else None
+
+
+_FRAMES = {}
+
+
+def _frame_of(cell, pbc):
+    """:func:`_frame` of ``cell`` and ``pbc``, memoised: most calls see the
+    cell of the call before (MD at constant volume, a trajectory's frames),
+    and a cached frame costs 1 µs against 10-15.  Nothing writes the
+    arrays, so threads may share them."""
+    key = (cell.tobytes(), pbc.tobytes())
+    try:
+        return _FRAMES[key]
+    except KeyError:
+        pass
+    if len(_FRAMES) >= 64:
+        _FRAMES.clear()
+    frame = _FRAMES[key] = _frame(cell, pbc)
+    return frame
 
 
 def work(n, cell, pbc, rc):
