@@ -7,7 +7,8 @@ the grid's construction, the block index, the scan's room and codes, the
 full list's row groups and cursors: about 30 Python-level steps, 0.3-0.9 ms
 before the first pair on one to 60 atoms, where vesin and matscipy answer
 in 13-60 µs.  This module answers in one compiled call from the arrays to
-``ase.neighborlist``'s: for every pair of atoms ``i <= j`` it bounds the
+``ase.neighborlist``'s (after the cell's inverse, computed in Python once
+per cell: :func:`_frame_of`): for every pair of atoms ``i <= j`` it bounds the
 cell shifts ``S`` that can bring them within the cutoff, tests each image,
 and writes the kept pairs at both atoms.
 
