@@ -6,11 +6,17 @@ the exact block query (:mod:`ase_mlg.query`) costs what its set-up costs --
 the grid's construction, the block index, the scan's room and codes, the
 full list's row groups and cursors: about 30 Python-level steps, 0.3-0.9 ms
 before the first pair on one to 60 atoms, where vesin and matscipy answer
-in 13-60 µs.  This module answers in one compiled call from the arrays to
-``ase.neighborlist``'s (after the cell's inverse, computed in Python once
-per cell: :func:`_frame_of`): for every pair of atoms ``i <= j`` it bounds the
-cell shifts ``S`` that can bring them within the cutoff, tests each image,
-and writes the kept pairs at both atoms.
+in 13-60 µs.  This module answers from the arrays to ``ase.neighborlist``'s
+in three compiled calls, after the cell's inverse (computed in Python
+once per cell: :func:`_frame_of`): the fractional coordinates
+(:func:`_reach`); for every pair of atoms ``i <= j`` the cell shifts ``S``
+that can bring them within the cutoff, each image tested
+(:func:`_half_pairs`); the kept pairs at both atoms (:func:`_full`).
+Three kernels driven from Python, not one calling the others, because
+numba optimizes a kernel with its callees' code linked in: each level
+compiled the levels below once more (a first ``neighbor_list`` of 108
+atoms 3.6 -> 2.7 s of compilation on AMD Zen 4; the two extra dispatches
+cost 2 µs a call).
 
 Which shifts are tested
 -----------------------
@@ -79,8 +85,6 @@ __all__ = ["all_pairs", "half_pairs", "MAX_WORK"]
 #: atoms of a metal at 5-6 Å on this path.
 MAX_WORK = 6e5
 
-# statuses of the kernels
-_DONE, _NOT_MINE = 0, 2
 # a periodic atom further than this many cells out goes to the large path:
 # the image interval's round-off grows with the shift (docs/design.md §6)
 _FAR_CELLS = 1024.0
@@ -174,13 +178,59 @@ def _shifts(df, reach, periodic):
     return 0, 0
 
 
-@njit(cache=True, no_cpython_wrapper=True)
+@njit(cache=True)
+def _reach(pos, frame, pbc, mode, cut, radii, table, max_work, f, pad):
+    """Write the fractional coordinates ``f`` of the atoms in the cell of
+    ``frame`` (:func:`_frame`) and the round-off ``pad`` of each axis's
+    shift interval (fractions of a cell); False where the input is the
+    large path's (atoms far out, too many images or too much work, a cell
+    whose inverse is not exact enough).  The arrays come from the caller:
+    numba's ``np.empty`` compiled for 0.2 s of a first call."""
+    n = pos.shape[0]
+    rcmax = cut
+    if mode == 1:
+        for k in range(n):
+            rcmax = max(rcmax, 2.0 * radii[k])
+    elif mode == 2:
+        for a in range(table.shape[0]):
+            for c in range(table.shape[1]):
+                rcmax = max(rcmax, table[a, c])
+    # -- what this path takes: the rest is the large path's (its errors too)
+    scale = 1.0
+    images = 1.0
+    for a in range(3):
+        for c in range(3):
+            scale = max(scale, abs(frame[a, c]))
+        if pbc[a]:
+            images *= 2.0 * rcmax * frame[6, a] + 1.0
+    far = False
+    for k in range(n):
+        for a in range(3):
+            scale = max(scale, abs(pos[k, a]))
+            f[k, a] = pos[k, 0] * frame[3, a] + pos[k, 1] * frame[4, a] + pos[k, 2] * frame[5, a]
+            far |= pbc[a] and not abs(f[k, a]) <= _FAR_CELLS
+    if (far or scale > 1e8 * max(rcmax, 1.0) or not images < 1e6
+            or not 0.5 * n * (n + 1) * images <= max_work or not frame[9, 0] < 1e-12):
+        return False
+    # round-off pads every shift interval: the coordinates' own (relative
+    # 1e-9, as the block query pads) and the inverse's, which grows with
+    # the shift
+    for a in range(3):
+        pad[a] = (1e-9 * (scale + rcmax) * frame[6, a] + 8.0 * max(frame[9, 0], 1e-16)
+                  * (2.0 * _FAR_CELLS + rcmax * frame[6, a] + 2.0))
+    return True
+
+
+@njit(cache=True)
 def _half_pairs(pos, frame, pad, f, pbc, cutoff, self_interaction, i0, m, store):
-    """The pairs ``i <= j`` within the cutoff, rows ``i0...`` on, in (i, j,
-    S) order, from entry ``m`` of ``store`` (rows ``i, j, S``); ``pad``
-    pads each axis's shift interval (fractions of a cell).  Returns
-    ``(m, i)``: rows before ``i`` are done (``i < n`` when row ``i`` ran
-    out of room: grow the store and call again from it)."""
+    """The pairs ``i <= j`` within the cutoff (``(mode, cut, radii,
+    types, table)``: :func:`_pair_cutoff`), rows ``i0...`` on, in (i, j, S) order,
+    from entry ``m`` of ``store`` (rows ``i, j, S``), in the cell of
+    ``frame`` with :func:`_reach`'s ``f`` and ``pad``.  Returns ``(m,
+    i)``: rows before ``i`` are done (``i < n`` when row ``i`` ran out of
+    room: grow the store and call again from it).  An atom's pairs with
+    its own images (``i == j``) come both as S and -S (the full list
+    writes each once; :func:`half_pairs` keeps one)."""
     n = pos.shape[0]
     full = frame[0:3]
     h0, h1, h2 = frame[6, 0], frame[6, 1], frame[6, 2]
@@ -223,89 +273,22 @@ def _half_pairs(pos, frame, pad, f, pbc, cutoff, self_interaction, i0, m, store)
     return m, n
 
 
-@njit(cache=True, no_cpython_wrapper=True)
-def _grow(store):
-    """The pair store, twice as long, its contents kept."""
-    bigger = np.empty((2 * store.shape[0], store.shape[1]), np.int64)
-    for k in range(store.shape[0]):
-        for c in range(store.shape[1]):
-            bigger[k, c] = store[k, c]
-    return bigger
-
-
 @njit(cache=True)
-def _half(pos, frame, pbc, mode, cut, radii, types, table, self_interaction, max_work):
-    """The half list, each pair ``i < j`` once, in (i, j, S) order, and an
-    atom's pairs with its own images (``i == j``) both as S and -S (the
-    full list writes each once; :func:`half_pairs` keeps one), in the
-    cell of ``frame`` (:func:`_frame`): ``(status, store, m)``, rows
-    ``store[:m]`` = (i, j, S) (a Python entry point too); status
-    ``_NOT_MINE`` (the large path's) with ``m = 0``."""
-    n = pos.shape[0]
-    none = n - n
-    idx = np.empty((16 * n + 64, 5), np.int64)
-    rcmax = cut
-    if mode == 1:
-        for k in range(n):
-            rcmax = max(rcmax, 2.0 * radii[k])
-    elif mode == 2:
-        for a in range(table.shape[0]):
-            for c in range(table.shape[1]):
-                rcmax = max(rcmax, table[a, c])
-    # -- what this path takes: the rest is the large path's (its errors too)
-    scale = 1.0
-    images = 1.0
-    for a in range(3):
-        for c in range(3):
-            scale = max(scale, abs(frame[a, c]))
-        if pbc[a]:
-            images *= 2.0 * rcmax * frame[6, a] + 1.0
-    f = np.empty((n, 3), np.float64)
-    far = False
-    for k in range(n):
-        for a in range(3):
-            scale = max(scale, abs(pos[k, a]))
-            f[k, a] = pos[k, 0] * frame[3, a] + pos[k, 1] * frame[4, a] + pos[k, 2] * frame[5, a]
-            far |= pbc[a] and not abs(f[k, a]) <= _FAR_CELLS
-    if (far or scale > 1e8 * max(rcmax, 1.0) or not images < 1e6
-            or not 0.5 * n * (n + 1) * images <= max_work or not frame[9, 0] < 1e-12):
-        return _NOT_MINE, idx, none
-    # round-off pads every shift interval (fractions of a cell): the
-    # coordinates' own (relative 1e-9, as the block query pads) and the
-    # inverse's, which grows with the shift
-    pad = np.empty(3, np.float64)
-    for a in range(3):
-        pad[a] = (1e-9 * (scale + rcmax) * frame[6, a] + 8.0 * max(frame[9, 0], 1e-16)
-                  * (2.0 * _FAR_CELLS + rcmax * frame[6, a] + 2.0))
-    m, i = none, none
-    while True:
-        m, i = _half_pairs(pos, frame, pad, f, pbc, (mode, cut, radii, types, table),
-                           self_interaction, i, m, idx)
-        if i == n:
-            break
-        idx = _grow(idx)
-    return _DONE, idx, m
+def _full(pos, frame, idx, m, want):
+    """The full list of :func:`_half_pairs`'s rows ``idx[:m]``: every pair at
+    both atoms, ordered by (i, j, S).  ``want``: bits 1, 2, 4, 8 for j, d,
+    D, S.  Returns ``(i, j, d, D, S)``, the unwanted ones empty.
 
-
-@njit(cache=True)
-def _all_pairs(pos, frame, pbc, mode, cut, radii, types, table, self_interaction,
-               want, max_work):
-    """Every pair within the cutoff at both atoms, ordered by (i, j, S).
-
-    ``want``: bits 1, 2, 4, 8 for j, d, D, S.  Returns ``(status, i, j, d,
-    D, S)``; status ``_NOT_MINE`` (see :func:`_half`) with empty arrays."""
+    A kernel of its own, called after the half list from Python, not
+    calling it: numba optimizes a caller with its callees' code linked in,
+    so a kernel that called the half list's kernels compiled them a second
+    time (0.6 s of a first ``neighbor_list``)."""
     n = pos.shape[0]
     # every array is np.empty of one of four kinds (1-D/2-D, int64/float64):
     # each other numpy call would be one more implementation to compile.
     # No constant is passed to a kernel: numba compiles a callee once more
     # for each literal argument (measured: 0.7 s of a cold start)
     none = n - n
-    status, idx, m = _half(pos, frame, pbc, mode, cut, radii, types, table,
-                           self_interaction, max_work)
-    if status != _DONE:
-        return (status, np.empty(none, np.int64), np.empty(none, np.int64),
-                np.empty(none, np.float64), np.empty((none, 3), np.float64),
-                np.empty((none, 3), np.int64))
     # -- the full list: each pair at i, its mirror at j
     cur = np.empty(n + 1, np.int64)
     for a in range(n + 1):
@@ -347,7 +330,7 @@ def _all_pairs(pos, frame, pbc, mode, cut, radii, types, table, self_interaction
                      Dx, Dy, Dz, S0, S1, S2)
             cur[a] += 1
         k = e
-    return _DONE, out.out_i, out.out_j, out.out_d, out.out_D, out.out_S
+    return out.out_i, out.out_j, out.out_d, out.out_D, out.out_S
 
 
 def all_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False,
@@ -392,10 +375,11 @@ def all_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False,
         return None
     want = (("j" in quantities) | ("d" in quantities) << 1 | ("D" in quantities) << 2
             | ("S" in quantities) << 3)
-    res = _call(_all_pairs, positions, args, (want,), float(max_work))
+    res = _call(positions, args, float(max_work))
     if res is None:
         return None
-    i, j, d, D, S = res
+    frame, idx, m = res
+    i, j, d, D, S = _full(positions, frame, idx, m, want)
     return {"i": i, "j": j, "d": d, "D": D, "S": S}
 
 
@@ -410,10 +394,10 @@ def half_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False, max_wo
     args = _arguments(cell, pbc, pair_cutoff, self_interaction)
     if args is None:
         return None
-    res = _call(_half, positions, args, (), float(max_work))
+    res = _call(positions, args, float(max_work))
     if res is None:
         return None
-    store, m = res
+    _, store, m = res
     i, j, S = store[:m, 0], store[:m, 1], store[:m, 2:]
     # an atom's pairs with its own images come as S and -S: keep one, the
     # lexicographically positive (and S = 0, the self-interaction)
@@ -442,12 +426,12 @@ def _arguments(cell, pbc, pair_cutoff, self_interaction):
         bool(self_interaction))
 
 
-def _call(kernel, positions, args, tail, max_work):
-    """``kernel``'s arrays (its arguments: ``positions``, the cell's frame,
-    ``args``, ``tail``, ``max_work``), on Box's completed cell where
-    :func:`_frame` leaves the cell to it (Box completes a missing vector of
-    an open axis, or raises what the large path raises); None where the
-    large path must answer."""
+def _call(positions, args, max_work):
+    """The half list's rows ``(frame, store, m)``, ``store[:m]`` = (i, j,
+    S) in (i, j, S) order (:func:`_half_pairs`), on Box's
+    completed cell where :func:`_frame` leaves the cell to it (Box
+    completes a missing vector of an open axis, or raises what the large
+    path raises); None where the large path must answer."""
     cell, pbc, rest = args
     n = len(positions)
     if 0.5 * n * (n + 1) > max_work:
@@ -460,8 +444,22 @@ def _call(kernel, positions, args, tail, max_work):
         frame = _frame_of(np.ascontiguousarray(Box(cell, pbc).full), pbc)
         if frame is None:
             return None
-    status, *res = kernel(positions, frame, pbc, *rest, *tail, max_work)
-    return res if status == _DONE else None
+    mode, cut, radii, types, table, self_interaction = rest
+    f, pad = np.empty((n, 3)), np.empty(3)
+    if not _reach(positions, frame, pbc, mode, cut, radii, table, max_work, f, pad):
+        return None
+    # The loop's driver is Python, not a kernel calling the loop: numba
+    # optimizes a caller with its callees' code linked in, so each level of
+    # kernels compiled the level below once more (0.5-0.6 s of a first call)
+    # room for 32 pairs an atom: a metal or an ML model's 5-6 Å in one go
+    store = np.empty((32 * n + 64, 5), np.int64)
+    m = i = 0
+    while True:
+        m, i = _half_pairs(positions, frame, pad, f, pbc, rest[:5], self_interaction, i, m,
+                           store)
+        if i == n:
+            return frame, store, m
+        store = np.concatenate((store, np.empty_like(store)))
 
 
 _FRAMES = {}

@@ -253,7 +253,7 @@ def primitive_neighbor_list(quantities, pbc, cell, positions, cutoff,
             raise ValueError("cell: expected a finite (3, 3) array")
         pos = np.ascontiguousarray(pos @ cell)
     if grid is None:
-        # small systems: one compiled call, no grid (ase_mlg.allpairs); it
+        # small systems: a few compiled calls, no grid (ase_mlg.allpairs); it
         # answers None where the grid's query is faster or must decide
         res = all_pairs(pos, cell, pbc, (mode, cut, radii, types, table),
                         bool(self_interaction), quantities)
