@@ -392,9 +392,10 @@ class VerletList:
         i, j, S = pairs
         if self.radii is None and self.rlist != self.cutoff:
             # the pairs within the cutoff first in each row, as the scan
-            # writes them (the rows' sort below is stable)
+            # writes them, the rows kept in order (no sort in from_pairs
+            # where the rows are the atoms)
             D = x[j] - x[i] + S @ cell
-            first = np.argsort(np.einsum("ij,ij->i", D, D) > self.cutoff ** 2, kind="stable")
+            first = np.lexsort((np.einsum("ij,ij->i", D, D) > self.cutoff ** 2, i))
             i, j, S = i[first], j[first], S[first]
         if sites is None:
             order = np.arange(len(x), dtype=np.int64)
