@@ -25,19 +25,18 @@ reads the fields by name; the kernel copies them to locals before its
 * :class:`SumOutputs` -- the chunk buffers and the per-atom outputs.
 
 :func:`pair_kernel` returns the kernel for a pair function, serial or
-threaded: the built-in pair functions (:func:`is_built_in`) have cached
-entry points with the pair function inlined, a user's pair function goes
-into the generic kernel as a compile-time argument (a numba dispatcher,
-inlined too, but compiled once per process: numba's on-disk cache cannot
-key a function argument).  A kernel flags bad pairs without naming them
+threaded: copies of one kernel's code, each with its pair function inlined,
+cached on disk for the built-in pair functions (:func:`is_built_in`) and
+compiled once per process for a user's.  A kernel flags bad pairs without naming them
 (no per-pair branch in the loop); :func:`first_bad_pair` then finds the
 first one and says why with a :class:`PairError` code.
 """
 
 import enum
-import functools
 import math
+import threading
 from collections import namedtuple
+from types import FunctionType
 
 import numba
 import numpy as np
@@ -105,11 +104,14 @@ SumOutputs = namedtuple("SumOutputs",
                         "fbuf ebuf vbuf part forces energies virials")
 
 
-def _pair_sum(pair, squared, general, lst, code, pot, chunks, out):
+def _pair_sum(lst, code, pot, chunks, out):
     """Energy, forces and virials of a half pair list, one fused pass.
 
-    The pair function is a compile-time argument (a numba dispatcher), so it
-    is inlined into the loop.  Rows are split into the chunks of
+    The source of every kernel: :func:`_kernel` compiles a copy of it for
+    each pair function ``PAIR``, form ``SQUARED`` and ``GENERAL``, which
+    the copy reads as constants (its globals), so the pair function is
+    inlined into the loop and the branches on the two flags leave it.
+    Rows are split into the chunks of
     ``chunks`` (about equal pair counts); each chunk accumulates into its
     own window of the buffers (``out.fbuf`` and ``out.ebuf``/``out.vbuf``
     when per-atom energies or virials are wanted): entry
@@ -118,15 +120,14 @@ def _pair_sum(pair, squared, general, lst, code, pot, chunks, out):
     (``forces[order[t]]``), so the result is the same on every run with the
     same chunks, whichever thread ran which chunk.
 
-    Parameters
-    ----------
-    pair : numba function ``(r, p) -> (e, dE/dr)``
-        Or ``(r**2, p) -> (e, dE/dr / r)`` with ``squared``.
-    squared : bool
-        ``pot.squared``, passed on its own so that the built-in entry points
-        can pass it as a constant: the branch then leaves the loop (3 % of
+    Constants
+    ---------
+    PAIR : numba function ``(r, p) -> (e, dE/dr)``
+        Or ``(r**2, p) -> (e, dE/dr / r)`` with ``SQUARED``.
+    SQUARED : bool
+        ``pot.squared`` as a constant: the branch leaves the loop (3 % of
         the loop on AMD Zen 4 with the per-pair row below).
-    general : bool
+    GENERAL : bool
         Whether the kernel reads the species tables (``lst.types`` into
         ``pot``'s tables), counts pairs below ``rmin`` (``pot.check_rmin``)
         and writes the virial and per-atom energies and virials (as
@@ -176,7 +177,7 @@ def _pair_sum(pair, squared, general, lst, code, pot, chunks, out):
     virials = out.virials
     n = X.shape[0]
     nchunk = wlo.shape[0]
-    if general:
+    if GENERAL:
         want_e = ebuf.shape[0] > 0
         want_v = vbuf.shape[0] > 0
         want_w = pot.want_virial
@@ -239,11 +240,11 @@ def _pair_sum(pair, squared, general, lst, code, pot, chunks, out):
                 # a view carried through the loop costs its registers and
                 # reference counting 1 ns a pair (AMD Zen 4, 8.8 -> 8.4 ns)
                 p = params[ta, tb]
-                if squared:
-                    e, s = pair(r2, p)
+                if SQUARED:
+                    e, s = PAIR(r2, p)
                 else:
                     r = math.sqrt(r2)
-                    e, dedr = pair(r, p)
+                    e, dedr = PAIR(r, p)
                     s = dedr / r
                 erow += e
                 check += s  # r = 0 or NaN makes it non-finite
@@ -351,26 +352,37 @@ def _pair_sum(pair, squared, general, lst, code, pot, chunks, out):
                     virials[a, x] = vs
 
 
-# Threads pay off only on long lists (waking them costs more than a short
-# list): one Python function, compiled serial and threaded.  With a user's
-# pair function as its (compile-time) argument the kernel is compiled once
-# per process: numba's on-disk cache cannot key a function argument.  The
-# built-in potentials get cached entry points below, the pair function
-# inlined into each.
-_pair_sum_inline = numba.njit(inline='always', error_model='numpy')(_pair_sum)
+# The constants the source of the kernels reads (each compiled copy has
+# its own: :func:`_kernel`)
+PAIR = SQUARED = GENERAL = None
 
 
-def _sum_generic(pair, lst, code, pot, chunks, out):
-    _pair_sum_inline(pair, pot.squared, False, lst, code, pot, chunks, out)
+def _kernel(name, pair, squared, general, cache):
+    """``(serial, threaded)`` kernels of :func:`_pair_sum` for the pair
+    function ``pair`` (:func:`ase_mlg.parallel.serial_and_parallel`):
+    copies of its code with ``PAIR``, ``SQUARED`` and ``GENERAL`` bound
+    in the copy's globals, named ``name`` (the on-disk cache's key with
+    ``cache``).
+
+    Why copies, not one kernel taking the three as arguments and inlined
+    into an entry point per pair function: numba inlines a function at its
+    IR by deep-copying the IR, 1.1 s of every kernel's first compilation
+    (AMD Zen 4); a global is a constant to numba as a literal argument is,
+    so the same branches are pruned before typing."""
+    body = _pair_sum
+    constants = dict(PAIR=pair, SQUARED=bool(squared), GENERAL=bool(general))
+    copy = FunctionType(body.__code__, dict(body.__globals__, **constants), name)
+    copy.__qualname__ = name
+    copy.__module__ = body.__module__
+    copy.__doc__ = body.__doc__
+    return serial_and_parallel(copy, cache=cache, nogil=True, error_model='numpy')
 
 
-def _sum_generic_general(pair, lst, code, pot, chunks, out):
-    _pair_sum_inline(pair, pot.squared, True, lst, code, pot, chunks, out)
-
-
-# general -> (serial, threaded)
-_GENERIC = {general: serial_and_parallel(entry, cache=False, nogil=True, error_model='numpy')
-            for general, entry in ((False, _sum_generic), (True, _sum_generic_general))}
+# A user's pair function: its kernels, compiled once per process (numba's
+# on-disk cache cannot key a Python object it did not compile from a file
+# of its own), kept by (pair, squared, general)
+_GENERIC = {}
+_GENERIC_LOCK = threading.Lock()
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -465,47 +477,20 @@ def pair_vectors(positions, i, j, shifts, cell):
     return D, d
 
 
-# Cached kernels of the built-in potentials: module-level functions naming
-# their pair function, its form (``squared``) and ``general`` as constants,
-# so numba can key them on disk and take those branches out of the loop.
+# The built-in potentials' kernels, cached on disk under their own names.
 # Each compiles on first use: an MD run of one species without a barostat
 # never compiles the ``_general`` ones.
-def _sum_lj_shifted(lst, code, pot, chunks, out):
-    _pair_sum_inline(lennard_jones_shifted_r2, True, False, lst, code, pot, chunks, out)
+def _twins(name, pair, squared):
+    """general -> (serial, threaded) of a built-in pair function."""
+    return {False: _kernel(name, pair, squared, False, True),
+            True: _kernel(name + "_general", pair, squared, True, True)}
 
 
-def _sum_lj_shifted_general(lst, code, pot, chunks, out):
-    _pair_sum_inline(lennard_jones_shifted_r2, True, True, lst, code, pot, chunks, out)
-
-
-def _sum_lj_smooth(lst, code, pot, chunks, out):
-    _pair_sum_inline(lennard_jones_smooth_r2, True, False, lst, code, pot, chunks, out)
-
-
-def _sum_lj_smooth_general(lst, code, pot, chunks, out):
-    _pair_sum_inline(lennard_jones_smooth_r2, True, True, lst, code, pot, chunks, out)
-
-
-def _sum_morse(lst, code, pot, chunks, out):
-    _pair_sum_inline(morse, False, False, lst, code, pot, chunks, out)
-
-
-def _sum_morse_general(lst, code, pot, chunks, out):
-    _pair_sum_inline(morse, False, True, lst, code, pot, chunks, out)
-
-
-def _twins(plain, general):
-    """general -> (serial, threaded) of a built-in pair function's entries."""
-    flags = dict(nogil=True, error_model='numpy')
-    return {False: serial_and_parallel(plain, **flags),
-            True: serial_and_parallel(general, **flags)}
-
-
-# pair function -> (its form, as its entry points above pass it; their twins)
+# pair function -> (its form, compiled into its kernels; the kernels)
 _BUILT_IN = {
-    lennard_jones_shifted_r2: (True, _twins(_sum_lj_shifted, _sum_lj_shifted_general)),
-    lennard_jones_smooth_r2: (True, _twins(_sum_lj_smooth, _sum_lj_smooth_general)),
-    morse: (False, _twins(_sum_morse, _sum_morse_general))}
+    lennard_jones_shifted_r2: (True, _twins("_sum_lj_shifted", lennard_jones_shifted_r2, True)),
+    lennard_jones_smooth_r2: (True, _twins("_sum_lj_smooth", lennard_jones_smooth_r2, True)),
+    morse: (False, _twins("_sum_morse", morse, False))}
 
 
 def is_built_in(pair):
@@ -521,7 +506,7 @@ def built_in_form(pair):
     return None if entry is None else entry[0]
 
 
-def pair_kernel(pair, threaded, general=True):
+def pair_kernel(pair, threaded, general=True, squared=False):
     """The pair-sum kernel for the pair function ``pair``.
 
     Parameters
@@ -537,19 +522,26 @@ def pair_kernel(pair, threaded, general=True):
         buffers ask (True), or one compiled for forces and energy of one
         species alone (False: it reads row ``params[0, 0]`` and ignores the
         rest; see :func:`_pair_sum`).
+    squared : bool
+        Whether ``pair`` takes ``r**2`` (``PairPotential.squared``); a
+        built-in pair function's form is its own (:func:`built_in_form`).
 
     Returns
     -------
-    callable ``kernel(lst, code, pot, chunks, out)``
+    numba dispatcher ``kernel(lst, code, pot, chunks, out)``
         Takes a :class:`SumList`, the image codes, a :class:`SumTables`, an
         :class:`ase_mlg.chunks.Chunks` and a :class:`SumOutputs`, fills
         ``out`` and returns None.  For a built-in pair function
-        (:func:`is_built_in`) the cached numba dispatcher itself; else
-        ``functools.partial(generic, pair)`` with ``generic`` the generic
-        kernel's dispatcher (``.func``), compiled on first use in each
-        process.
+        (:func:`is_built_in`) loaded from numba's on-disk cache; for any
+        other one made on first use and compiled in each process, the same
+        kernel on every call with the same arguments.
     """
     entry = _BUILT_IN.get(pair)
     if entry is not None:
         return entry[1][bool(general)][bool(threaded)]
-    return functools.partial(_GENERIC[bool(general)][bool(threaded)], pair)
+    key = (pair, bool(squared), bool(general))
+    with _GENERIC_LOCK:
+        twins = _GENERIC.get(key)
+        if twins is None:
+            twins = _GENERIC[key] = _kernel("_sum_generic", pair, squared, general, False)
+    return twins[bool(threaded)]

@@ -498,7 +498,7 @@ class PairPotential:
         # compiled without the rest
         general = bool(virial or virials or energies or self._check_rmin
                        or self.params.shape[0] > 1)
-        kernel = pair_kernel(self.pair, threaded, general)
+        kernel = pair_kernel(self.pair, threaded, general, self.squared)
         lst = SumList(X, types, rowptr, nbr, svec, order)
         pot = SumTables(self.squared, self.params, self._cut2, self._rmin2,
                          self._check_rmin, bool(virial or virials))

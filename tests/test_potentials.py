@@ -434,9 +434,9 @@ def test_virial_layouts_agree():
 
 
 def test_built_in_kernels_are_cached_user_kernels_compiled_once():
-    # LJ and Morse run through cached entry points with the pair function
-    # inlined; a user's pair function is compiled into the generic kernel
-    # (once per process: numba cannot key a function argument on disk).
+    # LJ and Morse run through cached kernels with the pair function
+    # inlined; a user's pair function gets kernels of its own, made once
+    # and compiled once per process (not cached on disk).
     atoms = fcc_ar(1, rattle=0.1)
     for pot in [*BUILT.values(), LennardJones(smooth=True)]:
         run(pot, atoms)
@@ -447,11 +447,12 @@ def test_built_in_kernels_are_cached_user_kernels_compiled_once():
     user = PairPotential(soft, [1.0, 2.0], 2.0)
     assert not is_built_in(user.pair)
     run(user, atoms)
-    generic = pair_kernel(user.pair, False)
-    assert generic.args == (user.pair,)
-    assert len(generic.func.overloads) >= 1
-    # every user pair function goes through the one generic dispatcher
-    assert pair_kernel(blows_up, False).func is generic.func
+    generic = pair_kernel(user.pair, False, True, user.squared)
+    assert len(generic.overloads) >= 1  # the one the run compiled
+    assert generic is pair_kernel(user.pair, False, True, user.squared)
+    assert generic is not pair_kernel(user.pair, False, False, user.squared)
+    assert generic is not pair_kernel(user.pair, False, True, not user.squared)
+    assert pair_kernel(blows_up, False) is not generic
 
 
 def test_forces_only_kernel_gives_the_general_kernels_bits():
