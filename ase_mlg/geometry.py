@@ -29,6 +29,23 @@ def as_positions(positions, name="positions"):
         If the shape is not ``(N, 3)`` or an entry is NaN/inf (the message
         names the first offending atom).
     """
+    arr = positions
+    if not (type(arr) is np.ndarray and arr.dtype == np.float64 and arr.ndim == 2
+            and arr.shape[1] == 3 and arr.flags.c_contiguous):
+        arr = _numeric_positions(positions, name)
+    if np.isfinite(arr).all():  # 30x faster than per row (1.4 ms at 10^5)
+        return arr
+    bad = ~np.isfinite(arr).all(axis=1)
+    idx = np.flatnonzero(bad)
+    raise ValueError(f"{name}: non-finite (NaN/inf) coordinates for atom(s) "
+                     f"{idx[:10].tolist()}{' ...' if len(idx) > 10 else ''}")
+
+
+def _numeric_positions(positions, name):
+    """``positions`` as a C-contiguous float64 ``(N, 3)`` array, or the
+    TypeError or ValueError :func:`as_positions` raises on its type or
+    shape (the checks an ASE system's positions, float64 (N, 3) already,
+    skip: 3 µs of a call on one atom)."""
     arr = np.asarray(positions)
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number)
                                    or arr.dtype == bool):
@@ -39,15 +56,7 @@ def as_positions(positions, name="positions"):
         if arr.size == 0 and arr.ndim <= 2:
             return np.zeros((0, 3))
         raise ValueError(f"{name}: expected shape (N, 3), got {arr.shape}")
-    arr = np.ascontiguousarray(arr, dtype=np.float64)
-    if np.isfinite(arr).all():  # 30x faster than per row (1.4 ms at 10^5)
-        return arr
-    bad = ~np.isfinite(arr).all(axis=1)
-    if bad.any():
-        idx = np.flatnonzero(bad)
-        raise ValueError(f"{name}: non-finite (NaN/inf) coordinates for atom(s) "
-                         f"{idx[:10].tolist()}{' ...' if len(idx) > 10 else ''}")
-    return arr
+    return np.ascontiguousarray(arr, dtype=np.float64)
 
 
 def same(a, b):
