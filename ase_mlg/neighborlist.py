@@ -51,6 +51,7 @@ negative/NaN/inf cutoffs or skin, a cutoff list of the wrong length, unknown
 elements in a cutoff dict, NaN/inf positions, a zero-volume periodic cell.
 """
 
+import math
 import numbers as _numbers
 
 import numpy as np
@@ -96,7 +97,8 @@ def _check_quantities(quantities):
 
 
 def _check_value(x, what):
-    if not np.isfinite(x) or x < 0:
+    """``x`` (a float) finite and >= 0, or a ValueError naming ``what``."""
+    if not (math.isfinite(x) and x >= 0):
         raise ValueError(f"{what}: must be finite and >= 0, got {x}")
 
 
@@ -124,7 +126,10 @@ def _is_scalar(cutoff):
 
 
 def _parse_cutoff(cutoff, natoms, numbers):
-    """Return (mode, scalar cut, radii, types, table, per-atom query radius)."""
+    """Return (mode, scalar cut, radii, types, table, per-atom query radius);
+    the query radius is None for a scalar cutoff (``cut`` for every atom:
+    the array only where the grid's query needs it, not on every small
+    call)."""
     if isinstance(cutoff, dict):
         if not cutoff:
             raise ValueError("cutoff: the cutoff dict is empty")
@@ -137,7 +142,7 @@ def _parse_cutoff(cutoff, natoms, numbers):
                                  f"got {key!r}") from None
             try:
                 c = float(c)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):
                 raise ValueError(f"cutoff: value for {key!r} is not a number: "
                                  f"{c!r}") from None
             _check_value(c, f"cutoff[{key!r}]")
@@ -146,7 +151,7 @@ def _parse_cutoff(cutoff, natoms, numbers):
         cmax = max(c for _, _, c in entries)
         if numbers is None:
             # ASE: without atomic numbers only the largest value is used
-            return CUT_SCALAR, cmax, None, None, None, np.full(natoms, cmax)
+            return CUT_SCALAR, cmax, None, None, None, None
         numbers = np.asarray(numbers)
         if numbers.shape != (natoms,):
             raise ValueError(f"numbers: expected shape ({natoms},), got "
@@ -163,10 +168,10 @@ def _parse_cutoff(cutoff, natoms, numbers):
     if _is_scalar(cutoff):
         try:
             c = float(cutoff)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ValueError(f"cutoff: expected a number, got {cutoff!r}") from None
         _check_value(c, "cutoff")
-        return CUT_SCALAR, c, None, None, None, np.full(natoms, c)
+        return CUT_SCALAR, c, None, None, None, None
     try:
         radii = np.asarray(cutoff, dtype=np.float64)
     except (TypeError, ValueError):
@@ -268,6 +273,8 @@ def primitive_neighbor_list(quantities, pbc, cell, positions, cutoff,
             raise ValueError("grid: the MLG does not hold these positions, cell "
                              "and pbc; call grid.update(positions) first")
     index = BlockIndex(grid, BLOCK)
+    if rat is None:
+        rat = np.full(n, cut)
     res = find_pairs(index, rat, mode, cut, radii, types, table,
                      self_interaction=bool(self_interaction),
                      quantities=quantities)

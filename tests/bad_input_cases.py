@@ -83,11 +83,13 @@ for _api in ("MLG", "MLG.update", "neighbor_list", "neighbor_list(atoms)",
         (lambda api: lambda: _bad_pos_check(api))(_api))
 
 
-@check("bad input", "cutoffs: negative, NaN, inf, string, complex, wrong length")
+@check("bad input", "cutoffs: negative, NaN, inf, string, complex, wrong length, "
+                    "an integer no float holds")
 def b_cutoffs():
     at = small_liquid()
     out = []
-    for c in (-1.0, np.nan, np.inf, "abc", 1 + 2j, [1.0] * 3, [-1.0] * len(at)):
+    for c in (-1.0, np.nan, np.inf, "abc", 1 + 2j, [1.0] * 3, [-1.0] * len(at), 10 ** 400,
+              {("Ar", "Ar"): 10 ** 400}):
         out.append(clear_error(lambda c=c: neighbor_list("ij", at, c), "cutoff"))
     for c in (-1.0, np.nan, [1.0, 2.0]):
         out.append(clear_error(lambda c=c: NeighborList(c if isinstance(c, list) else [c] * len(at)).update(at)
