@@ -34,7 +34,6 @@ first one and says why with a :class:`PairError` code.
 
 import enum
 import math
-import threading
 from collections import namedtuple
 from types import FunctionType
 
@@ -382,7 +381,6 @@ def _kernel(name, pair, squared, general, cache):
 # on-disk cache cannot key a Python object it did not compile from a file
 # of its own), kept by (pair, squared, general)
 _GENERIC = {}
-_GENERIC_LOCK = threading.Lock()
 
 
 @numba.njit(cache=True, error_model='numpy')
@@ -540,8 +538,10 @@ def pair_kernel(pair, threaded, general=True, squared=False):
     if entry is not None:
         return entry[1][bool(general)][bool(threaded)]
     key = (pair, bool(squared), bool(general))
-    with _GENERIC_LOCK:
-        twins = _GENERIC.get(key)
-        if twins is None:
-            twins = _GENERIC[key] = _kernel("_sum_generic", pair, squared, general, False)
+    twins = _GENERIC.get(key)
+    if twins is None:
+        # setdefault is atomic: threads racing here all get the one stored
+        # (a spare is dropped before anything compiles it); no lock, so
+        # nothing a fork could inherit held
+        twins = _GENERIC.setdefault(key, _kernel("_sum_generic", pair, squared, general, False))
     return twins[bool(threaded)]

@@ -455,6 +455,20 @@ def test_built_in_kernels_are_cached_user_kernels_compiled_once():
     assert pair_kernel(blows_up, False) is not generic
 
 
+def test_user_kernels_made_from_threads_at_once_are_one():
+    # Python threads asking for a new pair function's kernel at the same
+    # moment all get the one kept (no lock a fork could inherit held)
+    from concurrent.futures import ThreadPoolExecutor
+
+    @numba.njit
+    def fresh(r, p):
+        return p[0] * r, p[0]
+    with ThreadPoolExecutor(8) as pool:
+        kernels = list(pool.map(lambda _: pair_kernel(fresh, True, False, False), range(32)))
+    assert all(k is kernels[0] for k in kernels)
+    assert kernels[0] is pair_kernel(fresh, True, False, False)
+
+
 def test_forces_only_kernel_gives_the_general_kernels_bits():
     # one species' forces and energy run a kernel compiled without species
     # tables, the rmin count, the virial and per-atom outputs; it must give
