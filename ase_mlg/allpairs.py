@@ -409,21 +409,21 @@ def half_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False, max_wo
 
 
 def _arguments(cell, pbc, pair_cutoff, self_interaction):
-    """The kernels' arguments after ``positions``, one type each (so that
-    one compiled kernel serves every call): ``(cell, pbc, the rest)``, or
-    None for a cell the kernels do not take."""
+    """The kernels' arguments, one type each (so that one compiled kernel
+    serves every call): ``(cell, pbc, cutoff, self_interaction)`` with
+    ``cutoff = (mode, cut, radii, types, table)`` (:func:`_pair_cutoff`),
+    or None for a cell the kernels do not take."""
     if not (type(pbc) is np.ndarray and pbc.dtype == np.bool_ and pbc.shape == (3,)
             and pbc.flags.c_contiguous):
         pbc = as_pbc(pbc)
     if cell.shape != (3, 3) or cell.dtype != np.float64:
         return None
     mode, cut, radii, types, table = pair_cutoff
-    return np.ascontiguousarray(cell), pbc, (
-        int(mode), float(cut),
-        _EMPTY_F if radii is None else np.ascontiguousarray(radii, np.float64),
-        _EMPTY_I if types is None else np.ascontiguousarray(types, np.int64),
-        _EMPTY_TABLE if table is None else np.ascontiguousarray(table, np.float64),
-        bool(self_interaction))
+    cutoff = (int(mode), float(cut),
+              _EMPTY_F if radii is None else np.ascontiguousarray(radii, np.float64),
+              _EMPTY_I if types is None else np.ascontiguousarray(types, np.int64),
+              _EMPTY_TABLE if table is None else np.ascontiguousarray(table, np.float64))
+    return np.ascontiguousarray(cell), pbc, cutoff, bool(self_interaction)
 
 
 def _call(positions, args, max_work):
@@ -432,7 +432,7 @@ def _call(positions, args, max_work):
     completed cell where :func:`_frame` leaves the cell to it (Box
     completes a missing vector of an open axis, or raises what the large
     path raises); None where the large path must answer."""
-    cell, pbc, rest = args
+    cell, pbc, cutoff, self_interaction = args
     n = len(positions)
     if 0.5 * n * (n + 1) > max_work:
         # beyond the work bound whatever the images (one at least): the
@@ -444,18 +444,17 @@ def _call(positions, args, max_work):
         frame = _frame_of(np.ascontiguousarray(Box(cell, pbc).full), pbc)
         if frame is None:
             return None
-    mode, cut, radii, types, table, self_interaction = rest
+    mode, cut, radii, _, table = cutoff
     f, pad = np.empty((n, 3)), np.empty(3)
     if not _reach(positions, frame, pbc, mode, cut, radii, table, max_work, f, pad):
         return None
-    # The loop's driver is Python, not a kernel calling the loop: numba
-    # optimizes a caller with its callees' code linked in, so each level of
-    # kernels compiled the level below once more (0.5-0.6 s of a first call)
-    # room for 32 pairs an atom: a metal or an ML model's 5-6 Å in one go
+    # room for 32 pairs an atom (a metal or an ML model's 5-6 Å in one
+    # go), doubled here, in Python, when a row runs out (module doc: why
+    # no kernel drives the loop)
     store = np.empty((32 * n + 64, 5), np.int64)
     m = i = 0
     while True:
-        m, i = _half_pairs(positions, frame, pad, f, pbc, rest[:5], self_interaction, i, m,
+        m, i = _half_pairs(positions, frame, pad, f, pbc, cutoff, self_interaction, i, m,
                            store)
         if i == n:
             return frame, store, m

@@ -485,10 +485,10 @@ def _twins(name, pair, squared):
 
 
 # pair function -> (its form, compiled into its kernels; the kernels)
-_BUILT_IN = {
-    lennard_jones_shifted_r2: (True, _twins("_sum_lj_shifted", lennard_jones_shifted_r2, True)),
-    lennard_jones_smooth_r2: (True, _twins("_sum_lj_smooth", lennard_jones_smooth_r2, True)),
-    morse: (False, _twins("_sum_morse", morse, False))}
+_BUILT_IN = {pair: (squared, _twins("_sum_" + name, pair, squared))
+             for name, pair, squared in (("lj_shifted", lennard_jones_shifted_r2, True),
+                                         ("lj_smooth", lennard_jones_smooth_r2, True),
+                                         ("morse", morse, False))}
 
 
 def is_built_in(pair):
