@@ -205,6 +205,7 @@ class BlockIndex:
         self.positions = grid.positions
         box = view.box
         self.cell = np.ascontiguousarray(box.full, dtype=np.float64)
+        self.stretch = box.stretch  # the per-atom sphere of the scan, in grid space
         self.periods = np.array(view.periods, dtype=np.float64)
         n = grid.natoms
         if n:

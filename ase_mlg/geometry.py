@@ -154,6 +154,14 @@ class Box:
         # (= 1 / |reciprocal vector|); the grid coordinate of axis a is f_a * h_a.
         self.heights = 1.0 / np.linalg.norm(self.inverse, axis=0)
 
+    @property
+    def stretch(self):
+        """How much longer a displacement can be in grid coordinates than in
+        Cartesian ones: ``g = N x`` with ``N`` the unit face normals (rows),
+        so ``|dg| <= sqrt(max eig N N^T) |dx|``; 1 for an orthorhombic cell."""
+        N = self.inverse.T * self.heights[:, None]
+        return float(np.sqrt(np.linalg.eigvalsh(N @ N.T).max()))
+
     def fractional(self, positions):
         """Fractional coordinates of ``positions`` (not wrapped)."""
         return positions @ self.inverse

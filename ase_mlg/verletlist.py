@@ -287,7 +287,7 @@ class VerletList:
         return None
 
     # -- building it ----------------------------------------------------------
-    def build(self, positions, cell, pbc, numbers=None, same_atoms=True):
+    def build(self, positions, cell, pbc, numbers=None, same_atoms=True, owned=None):
         """Build the list for ``positions`` (float64 (N, 3), Å) in ``cell``
         with ``pbc``, whatever the state (the grid is updated, not rebuilt,
         where it can be).  ``same_atoms=False`` says that the rows are not
@@ -295,7 +295,10 @@ class VerletList:
         and new ghosts): the grid is then built anew, since following it
         would sweep nearly every atom to its new label (measured at 2 ranks
         of 108,000 atoms: 3.6 million swaps, 108 ms, against 35 ms for a
-        new grid).
+        new grid).  ``owned``: only the pairs with one of the first
+        ``owned`` atoms (a rank's own atoms before its ghosts;
+        :func:`~ase_mlg.query.half_list`); a small system's list, without
+        a grid, holds every pair.
 
         An exact list (``template=None``) of a small system comes from
         every atom pair tested (:func:`~ase_mlg.allpairs.half_pairs`), rows
@@ -328,7 +331,7 @@ class VerletList:
             positions = grid.positions  # the same numbers, as float64 C arrays
             self.timings["grid"] += time.perf_counter() - t0
             self.width = template(grid, numbers) if callable(template) else template
-            pl, inner_first = self._grid_list(grid, old, cell, pbc)
+            pl, inner_first = self._grid_list(grid, old, cell, pbc, owned)
         del old
         self.pairs = pl
         if not inner_first and self.radii is None and self.rlist != self.cutoff:
@@ -345,7 +348,7 @@ class VerletList:
         self.timings["list_build"] += time.perf_counter() - t0
         return pl
 
-    def _grid_list(self, grid, old, cell, pbc):
+    def _grid_list(self, grid, old, cell, pbc, owned=None):
         """The list on ``grid``: ``(PairList, inner_first)``, ``inner_first``
         whether each row holds the pairs within the cutoff first."""
         n = grid.natoms
@@ -367,12 +370,13 @@ class VerletList:
             return pair_list(index, i, j, S), False
         if self.radii is not None:
             return half_list(index, rat, CUT_RADII, radii=self.radii,
-                             self_interaction=self.self_interaction, reuse=old), False
+                             self_interaction=self.self_interaction, reuse=old,
+                             owned=owned), False
         # pairs within the cutoff first in each row, straight from the
         # scan, where the list holds others
         split = None if self.rlist == self.cutoff else self.cutoff
         return half_list(index, rat, cut=self.rlist, self_interaction=self.self_interaction,
-                         pairs_per_atom=hint, reuse=old, split=split), True
+                         pairs_per_atom=hint, reuse=old, split=split, owned=owned), True
 
     def _small_list(self, x, sites, cell, pbc):
         """The list of a small system, every atom pair tested
@@ -403,11 +407,11 @@ class VerletList:
             order = np.ascontiguousarray(sites[sites >= 0], dtype=np.int64)
         return PairList.from_pairs(order, np.zeros((len(order), 3), np.int64), i, j, S)
 
-    def rebuild(self, positions, cell, pbc, numbers=None, same_atoms=True):
+    def rebuild(self, positions, cell, pbc, numbers=None, same_atoms=True, owned=None):
         """:meth:`build`, and the kernel's positions (:attr:`X`,
         :attr:`svec`): what :meth:`update` does when the list does not hold."""
         cell = np.asarray(cell, dtype=np.float64)
-        self.build(positions, cell, pbc, numbers, same_atoms=same_atoms)
+        self.build(positions, cell, pbc, numbers, same_atoms=same_atoms, owned=owned)
         t0 = time.perf_counter()
         if self.X is None:
             self._gather(self.positions, cell)

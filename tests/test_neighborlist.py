@@ -312,6 +312,33 @@ def test_half_list_mirrors_to_full(mode):
                and not (i == j and S == (0, 0, 0))) == 0
 
 
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 2**31), pbc=st.tuples(st.booleans(), st.booleans(), st.booleans()),
+       frac=st.floats(0.0, 1.0), shear=st.floats(-2.0, 2.0))
+def test_half_list_owned_keeps_the_pairs_of_owned_atoms(seed, pbc, frac, shear):
+    """``owned=k`` (a rank's atoms, then its ghosts) gives exactly the
+    pairs with one of the first k atoms: the full list's, no others, on
+    triclinic cells and mixed pbc (the sphere test's stretch)."""
+    from ase_mlg.query import half_list
+    rng = np.random.default_rng(seed)
+    n = 300
+    atoms = ase.Atoms(f"Ar{n}", scaled_positions=rng.random((n, 3)),
+                      cell=[[12, 0, 0], [shear * 4, 11, 0], [1, shear * 3, 13]], pbc=pbc)
+    grid = ase_mlg.MLG.from_atoms(atoms)
+    index = BlockIndex(grid, 2)
+    k = int(frac * n)
+
+    def pairs(**kw):
+        pl = half_list(index, np.full(n, 3.5), 0, 3.5, **kw)
+        got = pl.arrays(grid.positions, index.cell, True, "ijS")
+        i, j, S = got["i"], got["j"], got["S"]
+        return {(i, j, S) if (i, j) <= (j, i) else (j, i, tuple(-x for x in S))
+                for i, j, S in zip(i.tolist(), j.tolist(), map(tuple, S.tolist()))}
+
+    every = pairs()
+    assert pairs(owned=k) == {p for p in every if min(p[0], p[1]) < k}
+
+
 def test_morse_calculator_accepts_our_neighbor_list():
     from ase.calculators.morse import MorsePotential
     atoms = bulk("Cu", "fcc", a=3.61, cubic=True) * 2
