@@ -14,7 +14,7 @@ from numba import njit
 
 from .parallel import run_chunks, threads_for
 
-__all__ = ["BlockIndex", "Blocks", "block_for_radius"]
+__all__ = ["BlockIndex", "Blocks", "block_for_radius", "FAR_RADII"]
 
 #: The arrays of a :class:`BlockIndex` that the query kernels read, as one
 #: argument (the attributes of the index of the same names): ``nb`` blocks
@@ -172,6 +172,15 @@ def _boxes(BB, nb):
     return R2, S1, glob
 
 
+#: Coordinates (Å) beyond this many list radii (at least 1 Å) from the
+#: origin are refused: the query's round-off margin grows with them (1e-9
+#: of the largest coordinate) and with it the images and candidates every
+#: atom visits, so a list there would take minutes, and distances computed
+#: as ASE computes them have lost 1e-7 of the cutoff.  Only an exploding
+#: run or a unit mistake puts atoms there (1e9 Å is 10 cm).
+FAR_RADII = 1e9
+
+
 class BlockIndex:
     """Blocked view of an MLG for exact range queries (see module doc).
 
@@ -241,6 +250,20 @@ class BlockIndex:
             self.order = np.zeros(0, np.int64)
             self.blocks = None
         self.scale = scale
+
+    def refuse_far(self, rmax):
+        """ValueError where a query radius ``rmax`` (Å) meets coordinates
+        beyond :data:`FAR_RADII` radii from the origin."""
+        limit = FAR_RADII * max(rmax, 1.0)
+        if not self.scale > limit:
+            return
+        far = np.abs(self.positions).max(axis=1) > limit
+        where = (f"atom(s) {np.flatnonzero(far)[:10].tolist()}{' ...' if far.sum() > 10 else ''}"
+                 if far.any() else "the cell vectors")
+        raise ValueError(f"positions: {where} reach {self.scale:.3g} Å from the origin, beyond "
+                         f"{FAR_RADII:.0e} list radii ({limit:.3g} Å), where distances lose "
+                         f"precision; an exploding MD run (check the time step and "
+                         f"overlapping atoms in the start) or a unit mistake?")
 
 
 def block_for_radius(grid, radius):
