@@ -370,3 +370,21 @@ def test_compiled_step_checks_the_state_twice_and_calculate_not_again(monkeypatc
     ref = atoms.copy()
     ref.calc = ASELennardJones(sigma=3.405, epsilon=0.0104, rc=6.0)
     np.testing.assert_allclose(atoms.get_forces(), ref.get_forces(), rtol=1e-10, atol=1e-12)
+
+
+def test_zero_mass_is_named_not_a_zero_division():
+    """A massless atom flies off as in ASE's numpy step (x += dt p / 0 is
+    inf); the next force call names it, not a bare ZeroDivisionError from
+    the compiled drift."""
+    atoms = bulk("Ar", "fcc", a=5.26, cubic=True).repeat(3)
+    atoms.rattle(0.01, seed=1)
+    masses = atoms.get_masses()
+    masses[5] = 0.0
+    atoms.set_masses(masses)
+    atoms.calc = ase_mlg.MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # ASE's own zero-mass warning
+        dyn = VelocityVerlet(atoms, 1.0)
+        with pytest.raises(ValueError, match=r"atom\(s\) \[5\]"):
+            dyn.run(2)
+    assert dyn.path == "compiled"

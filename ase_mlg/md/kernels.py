@@ -11,12 +11,22 @@ beside it.
 
 Units are ASE's: positions Å, momenta amu Å / (ASE time), forces eV/Å,
 masses amu, time steps ASE time units.
+
+The kernels divide under numpy's error model, as ASE's numpy expressions
+do (a zero mass gives inf, not a ZeroDivisionError), and index their
+(N, 3) arrays through flat views: the check Python's model puts before
+every division, and the run-time row stride of 2-D indexing, kept the
+compiler from vectorising the division (AMD Zen 4, 10,976 atoms: the drift
+53 -> 26 µs, the same bits).
 """
 
 from collections import namedtuple
 
+import numba
 import numpy as np
 from numba import njit
+
+from ..pairlist import flat
 
 __all__ = ["verlet_drift", "verlet_drift_rattle", "verlet_kick",
            "langevin_noise", "langevin_drift", "langevin_kick", "no_fixed",
@@ -35,7 +45,7 @@ LangevinCoefficients = namedtuple("LangevinCoefficients", "c1 c2 dt")
 NoiseCorrection = namedtuple("NoiseCorrection", "fixcm spos svel factor natoms")
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def verlet_drift(x, p, f, m, dt):
     """First half of a velocity Verlet step, no constraints.
 
@@ -55,15 +65,18 @@ def verlet_drift(x, p, f, m, dt):
         Time step (ASE time units).
     """
     h = 0.5 * dt                               # ASE: 0.5 * self.dt * forces
-    for a in range(x.shape[0]):
+    U = numba.uint64
+    xf, pf, ff = flat(x), flat(p), flat(f)
+    for a in range(U(x.shape[0])):
         ma = m[a]
-        for c in range(3):
-            pc = p[a, c] + h * f[a, c]         # p += 0.5 * dt * forces
-            p[a, c] = pc
-            x[a, c] = x[a, c] + dt * pc / ma   # r + self.dt * p / masses
+        for c in range(U(3)):
+            e = U(3) * a + c
+            pc = pf[e] + h * ff[e]             # p += 0.5 * dt * forces
+            pf[e] = pc
+            xf[e] = xf[e] + dt * pc / ma       # r + self.dt * p / masses
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def verlet_drift_rattle(x, p, f, m, dt, fixed):
     """First half of a velocity Verlet step with fixed atoms (FixAtoms).
 
@@ -93,7 +106,7 @@ def verlet_drift_rattle(x, p, f, m, dt, fixed):
             p[a, c] = (xn - r) * ma / dt
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def verlet_kick(p, f, dt, fixed):
     """Second half of a velocity Verlet step: ``p += 0.5 dt f``, in place;
     momenta of fixed atoms zeroed (``FixAtoms.adjust_momenta``).
@@ -110,16 +123,16 @@ def verlet_kick(p, f, dt, fixed):
         True where the atom is fixed (all False without constraints).
     """
     h = 0.5 * dt
-    for a in range(p.shape[0]):
-        if fixed[a]:
-            for c in range(3):
-                p[a, c] = 0.0
-        else:
-            for c in range(3):
-                p[a, c] = p[a, c] + h * f[a, c]
+    U = numba.uint64
+    pf, ff = flat(p), flat(f)
+    for a in range(U(p.shape[0])):
+        keep = not fixed[a]
+        for c in range(U(3)):
+            e = U(3) * a + c
+            pf[e] = pf[e] + h * ff[e] if keep else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def langevin_noise(xi, eta, c3, c4, c5, rnd_pos, rnd_vel):
     """The random displacements and velocity kicks of ASE's Langevin step.
 
@@ -142,7 +155,7 @@ def langevin_noise(xi, eta, c3, c4, c5, rnd_pos, rnd_vel):
             rnd_vel[a, c] = c3[a] * xi[a, c] - c4[a] * eta[a, c]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel, com, coef, fixed):
     """First half of ASE's Langevin step (Vanden-Eijnden and Ciccotti,
     Eq. 23), in place.
@@ -206,7 +219,7 @@ def langevin_drift(x, v, p, f, m_now, m, rnd_pos, rnd_vel, com, coef, fixed):
             v[a, c] = ((xn - r) - rp) / dt                  # (x_new - x - rnd_pos) / dt
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def langevin_kick(v, p, f, m, rnd_vel, c1, c2, fixed):
     """Second half of ASE's Langevin step, in place:
     ``v += c1 f / m - c2 v + rnd_vel``, ``p = v m`` (0 for fixed atoms).
@@ -243,7 +256,7 @@ def no_fixed(n):
     return np.zeros(n, dtype=np.bool_)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _mix64(z):
     # splitmix64's finaliser (Steele, Lea and Flood 2014): a bijection of
     # 64-bit words whose outputs pass BigCrush for consecutive inputs
@@ -252,7 +265,7 @@ def _mix64(z):
     return z ^ (z >> np.uint64(31))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def indexed_normals(seed, step, indices, xi, eta):
     """Standard normal draws keyed by (seed, step, atom index, component):
     the noise of a distributed Langevin run, the same for an atom whichever
