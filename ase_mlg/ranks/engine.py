@@ -41,9 +41,11 @@ __all__ = ["RankEngine"]
 
 
 @njit(cache=True)
-def _own_pairs(rowptr, nbr, code, ghost, index, image):
+def _own_pairs(rowptr, nbr, code, ghost, index, image, degree):
     """Keep, in place, the pairs of a half list in compressed rows that
-    this rank computes; returns the new pair count.  Per row: ``ghost``,
+    this rank computes; returns the new pair count, and adds each row's
+    kept pairs to its ``degree`` (the partition's work at the next
+    rebuild, counted here rather than in a pass of its own).  Per row: ``ghost``,
     the original ``index`` and the cell ``image`` (its owner's position
     plus ``image @ cell``; owned atoms: the image that brings them into the
     region).  A pair of two owned atoms is kept, of two ghosts dropped; a
@@ -77,21 +79,11 @@ def _own_pairs(rowptr, nbr, code, ghost, index, image):
                 nbr[w] = u
                 code[w] = code[q]
                 w += 1
+                degree[t] += 1.0
+                degree[u] += 1.0
         rowptr[t + 1] = w
         start = stop
     return w
-
-
-@njit(cache=True)
-def _degrees(rowptr, nbr, order, n):
-    """Pairs of each of the first ``n`` atoms (atom order) in a half list in
-    compressed rows (a bincount of the rows and columns, in one pass)."""
-    deg = np.zeros(order.shape[0])
-    for t in range(rowptr.shape[0] - 1):
-        deg[order[t]] += rowptr[t + 1] - rowptr[t]
-        for q in range(rowptr[t], rowptr[t + 1]):
-            deg[order[nbr[q]]] += 1.0
-    return deg[:n]
 
 
 def _finite(atoms):
@@ -132,6 +124,7 @@ class RankEngine:
         self.counts = dict.fromkeys(("rebuilds", "migrated", "ghosts", "owned"), 0)
         self.timings = dict.fromkeys(("halo", "check", "rebuild", "list", "kernel"), 0.0)
         self._key = self._buffer = self._shift = self._local_numbers = self._ids = None
+        self._degree = None  # pairs per owned atom in the last list
         self._choice = None  # the partition's (dims, alpha), tried first at a rebuild
 
     @staticmethod
@@ -184,9 +177,10 @@ class RankEngine:
         """Pairs per owned atom in the last list (the partition's work), or
         None before the first list or after the atoms changed."""
         pl, n = self.vl.pairs, len(atoms)
-        if pl is None or self.halo is None or pl.natoms != n + self.halo.nghost:
+        if (pl is None or self.halo is None or pl.natoms != n + self.halo.nghost
+                or self._degree is None):
             return None
-        return _degrees(pl.rowptr, pl.nbr, pl.order, n)
+        return self._degree
 
     def _build(self, atoms):
         """Partition, migration, ghosts, the local list of this rank's pairs."""
@@ -212,9 +206,13 @@ class RankEngine:
         pl = vl.pairs
         index = ids[pl.order]
         image = np.ascontiguousarray(images[pl.order])
+        degree = np.zeros(pl.natoms)  # row order
         m = _own_pairs(pl.rowptr, pl.nbr, pl.code, np.ascontiguousarray(pl.order >= len(atoms)),
-                       np.ascontiguousarray(index), image)
+                       np.ascontiguousarray(index), image, degree)
         pl.nbr, pl.code = pl.nbr[:m], pl.code[:m]
+        self._degree = np.empty(pl.natoms)
+        self._degree[pl.order] = degree
+        self._degree = self._degree[:len(atoms)]
         self.timings["list"] += time.perf_counter() - t0
 
     def calculate(self, atoms, energies=False, virials=False, virial=False):
