@@ -164,3 +164,41 @@ def test_bad_cell_leaves_the_grid_unchanged():
     assert np.array_equal(grid.box.cell, cell)
     assert np.array_equal(grid._sites, sites) and np.array_equal(grid._coords, coords)
     assert grid.stats["updates"] == 0
+
+
+@pytest.mark.parametrize("cell, pbc", [
+    ([10.0, 12.0, 9.0], True),
+    ([[10, 0, 0], [6, 9, 0], [3, -4, 8]], True),
+    ([[10, 0, 0], [9.5, 2, 0], [0, 0, 7]], (True, False, True)),
+    ([[10, 0, 0], [4, 8, 0], [0, 0, 0]], (True, True, False)),
+])
+def test_box_stretch_bounds_grid_displacements(cell, pbc):
+    """The scan's per-atom sphere in grid space (query, Box.stretch): grid
+    coordinates are g = N x with N the unit face normals, so |dg| <=
+    stretch |dx| for every displacement, the bound is tight, and an
+    orthorhombic cell has stretch 1."""
+    from ase_mlg.geometry import Box
+    box = Box(np.array(cell, dtype=float), pbc)
+    N = box.inverse.T * box.heights[:, None]
+    dx = np.random.default_rng(3).normal(size=(5000, 3))
+    ratio = np.linalg.norm(dx @ N.T, axis=1) / np.linalg.norm(dx, axis=1)
+    assert ratio.max() <= box.stretch * (1 + 1e-12)
+    worst = np.linalg.eigh(N.T @ N)[1][:, -1]  # the direction that stretches most
+    assert np.linalg.norm(N @ worst) == pytest.approx(box.stretch, rel=1e-12)
+    if np.ndim(cell) == 1:
+        assert box.stretch == pytest.approx(1.0, abs=1e-15)
+    else:
+        assert box.stretch > 1.0
+
+
+@pytest.mark.parametrize("pbc", [(True, True, True), (True, False, True), (False, True, True)])
+def test_block_query_on_a_strongly_sheared_cell_is_ase(pbc):
+    """The scan's sphere test stretched to grid space (Box.stretch well
+    above 1 here) loses no pair: the block query against ASE."""
+    rng = np.random.default_rng(11)
+    cell = 1.5 * np.array([[10.0, 0, 0], [9.0, 4.0, 0], [-7.0, 5.0, 6.0]])
+    x = rng.random((150, 3)) @ cell
+    grid = MLG(x, cell, pbc)
+    assert grid.box.stretch > 1.5
+    for rc in (3.0, 6.0):  # 6 Å is beyond the cell's smallest height
+        assert exact_pairs(grid, rc) == ase_pairs(x, cell, pbc, rc)
