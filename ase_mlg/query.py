@@ -98,9 +98,10 @@ _Reach = namedtuple("_Reach", "radius pad tolerance stretch")
 # types[u]]``; ``radii``/``types`` are per slot (block order), empty where
 # the mode ignores them.  ``self_interaction`` keeps (i, i, S=0).
 # Only pairs with one of atoms ``0 .. nown - 1`` are wanted (half_list's
-# ``owned``): ``owned`` (bool, per block) says whether the block holds one,
-# ``far`` (3, nslot) is ``P`` with every other slot at +inf, what a later
-# atom's row reads ((3, 0) where every pair is wanted).
+# ``owned``): ``owned`` (bool, per block) says whether the block holds one
+# (a later atom's row skips the blocks without), ``far`` (3, nslot) is
+# ``P`` with every other slot at +inf, what a later atom's row reads
+# ((3, 0) where every pair is wanted).
 _PairCutoff = namedtuple("_PairCutoff", "mode cutoff radii types table self_interaction "
                                         "owned nown far")
 
@@ -222,14 +223,13 @@ def _slot_values(slot_atom, radii, types, mode):
 
 
 @njit(cache=True)
-def _prepare(A, blocks, reach, owned, cand, cf, qlo, qhi):
+def _prepare(A, blocks, reach, cand, cf, qlo, qhi):
     """Candidate (block, image) list of query block ``A``: every block
     ``B >= A`` whose box meets A's box grown by the largest query radius of
     its atoms, for every periodic image ``m`` that can reach the global
     range of stored coordinates, but for those of ``A`` itself with a
     negative image (they only hold mirrors of pairs kept from the other
-    side), and but blocks that hold no ``owned`` atom where ``A`` holds
-    none (:data:`_PairCutoff`: such pairs are not wanted).
+    side).
 
     ``cand`` (rows of block, m0, m1, m2) and ``cf`` (each candidate's box
     shifted to its image at 0:6, the Cartesian image shift at 6:9) are the
@@ -283,8 +283,6 @@ def _prepare(A, blocks, reach, owned, cand, cf, qlo, qhi):
         m2 = cand[c, 3]
         # mirrors of pairs kept from the other side
         if B == A and (m0 < 0 or (m0 == 0 and (m1 < 0 or (m1 == 0 and m2 < 0)))):
-            continue
-        if not (owned[A] or owned[B]):
             continue
         cand[nkeep, 0] = B
         cand[nkeep, 1] = m0
@@ -383,7 +381,7 @@ def _scan(b0, b1, blocks, reach, cutoff, fmt, room, out_c):
         if natom_blk[A] == 0:
             continue
         before = total
-        cand, cf, ncand = _prepare(A, blocks, reach, cutoff.owned, cand, cf, qlo, qhi)
+        cand, cf, ncand = _prepare(A, blocks, reach, cand, cf, qlo, qhi)
         tA0 = A * bsz
         for t in range(tA0, tA0 + bsz):
             a = slot_atom[t]
@@ -641,15 +639,16 @@ def half_list(index, rat, mode=CUT_SCALAR, cut=0.0, radii=None, types=None,
     rowcount = np.zeros(n, np.int64)
     blocks = index.blocks
     reach = _Reach(rat, pad, ftol, index.stretch * (1.0 + 1e-12))
-    sa = index.slot_atom.reshape(-1, index.blocks.bsz)
+    sa = index.slot_atom
     if owned is None:
-        owned, owned_blk, far = n, np.ones(len(sa), dtype=np.bool_), np.zeros((3, 0))
+        nown, owned_blk, far = n, np.ones(len(sa) // blocks.bsz, dtype=np.bool_), np.zeros((3, 0))
     else:
-        owned_blk = ((sa >= 0) & (sa < owned)).any(axis=1)
+        nown = int(owned)
+        owned_blk = ((sa >= 0) & (sa < nown)).reshape(-1, blocks.bsz).any(axis=1)
         far = index.P.copy()
-        far[:, (index.slot_atom < 0) | (index.slot_atom >= owned)] = np.inf
+        far[:, sa >= nown] = np.inf  # holes are at +inf in P already
     cutoff = _PairCutoff(mode, float(cut), rs, ts, table, bool(self_interaction), owned_blk,
-                         int(owned), far)
+                         nown, far)
     fmt = _RowFormat(slo, sdim, -1.0 if split is None else float(split) ** 2)
     lo = np.zeros(nchunk + 1, np.int64)
     np.cumsum(caps, out=lo[1:])

@@ -210,9 +210,9 @@ class RankEngine:
         m = _own_pairs(pl.rowptr, pl.nbr, pl.code, np.ascontiguousarray(pl.order >= len(atoms)),
                        np.ascontiguousarray(index), image, degree)
         pl.nbr, pl.code = pl.nbr[:m], pl.code[:m]
-        self._degree = np.empty(pl.natoms)
-        self._degree[pl.order] = degree
-        self._degree = self._degree[:len(atoms)]
+        by_atom = np.empty(pl.natoms)
+        by_atom[pl.order] = degree
+        self._degree = by_atom[:len(atoms)]
         self.timings["list"] += time.perf_counter() - t0
 
     def calculate(self, atoms, energies=False, virials=False, virial=False):
