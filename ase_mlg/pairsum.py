@@ -1,9 +1,10 @@
-"""The pair kernel: one fused loop over a :class:`~ase_mlg.pairlist.PairList`.
+"""The pair kernel: one fused pass over a :class:`~ase_mlg.pairlist.PairList`.
 
-The kernel walks the rows of the half list in grid order, computes
-``D = X[u] - X[t] + S @ cell`` in registers in ASE's operation order, calls
-the pair function (inlined), and accumulates energy, forces and, when
-asked, per-atom energies and virials.  Threads follow :mod:`ase_mlg.parallel`
+The kernel walks the rows of the half list in grid order, each row in
+batches of three short loops: ``D = X[u] - X[t] + S @ cell`` gathered in
+ASE's operation order, the pair function (inlined) over the batch where
+LLVM vectorises it, then energy, forces and, when asked, per-atom energies
+and virials accumulated.  Threads follow :mod:`ase_mlg.parallel`
 and :mod:`ase_mlg.chunks`: chunks of rows with equal pair counts handed
 out one at a time, a force buffer per chunk covering only the window of
 ranks the chunk touches, windows summed per rank in chunk order, so the
@@ -101,6 +102,25 @@ SumTables = namedtuple("SumTables",
 #: Voigt order xx, yy, zz, yz, xz, xy, half of each pair to each atom).
 SumOutputs = namedtuple("SumOutputs",
                         "fbuf ebuf vbuf part forces energies virials")
+
+
+# Not cached: it takes a user's pair function too; the kernels that call it
+# carry it compiled in (LLVM inlines it there, and vectorises the loop;
+# numba's IR inlining, inline='always', left the loop scalar)
+@numba.njit(error_model='numpy')
+def _terms(pair, squared, p, cut, r2):
+    """A pair's energy (eV) and ``dE/dr / r`` (eV/Å²) from the pair function
+    ``pair`` (taking ``r**2`` if ``squared``) with parameters ``p``, at the
+    squared distance ``r2`` (Å²); both 0 beyond the squared cutoff ``cut``
+    (NaN is not beyond: the kernel's check flags it)."""
+    if squared:
+        e, s = pair(r2, p)
+    else:
+        r = math.sqrt(r2)
+        e, dedr = pair(r, p)
+        s = dedr / r
+    beyond = r2 > cut
+    return (0.0 if beyond else e), (0.0 if beyond else s)
 
 
 def _pair_sum(lst, code, pot, chunks, out):
@@ -213,6 +233,16 @@ def _pair_sum(lst, code, pot, chunks, out):
         check = 0.0
         nlow = 0
         v0 = v1 = v2 = v3 = v4 = v5 = 0.0
+        # a row's batch: pair vectors, squared distances, pair terms
+        buf = np.empty((6, BATCH))
+        bx = buf[0]
+        by = buf[1]
+        bz = buf[2]
+        br = buf[3]
+        be = buf[4]
+        bs = buf[5]
+        bt = np.empty(BATCH if typed else 0, np.int64)
+        c2 = cut2[0, 0]
         for t in range(rows[c], rows[c + 1]):
             x0 = Xf[3 * t]
             x1 = Xf[3 * t + 1]
@@ -221,69 +251,99 @@ def _pair_sum(lst, code, pot, chunks, out):
             ta = types[t] if typed else 0
             ft0 = ft1 = ft2 = 0.0
             erow = 0.0
-            for q in range(U(rowptr[t]), U(rowptr[t + 1])):
-                j = nbr[q]
-                u = U(3) * U(j)
-                k = U(3) * U(code[q])
-                # as ASE: positions[j] - positions[i] + S @ cell
-                dx = (Xf[u] - x0) + sv[k]
-                dy = (Xf[u + U(1)] - x1) + sv[k + U(1)]
-                dz = (Xf[u + U(2)] - x2) + sv[k + U(2)]
-                r2 = dx * dx + dy * dy + dz * dz
-                tb = types[U(j)] if typed else 0
-                if r2 > cut2[ta, tb]:
-                    continue
-                if check_rmin and r2 < rmin2[ta, tb]:
-                    nlow += 1
-                # the row taken afresh each pair, not kept across pairs:
-                # a view carried through the loop costs its registers and
-                # reference counting 1 ns a pair (AMD Zen 4, 8.8 -> 8.4 ns)
-                p = params[ta, tb]
-                if SQUARED:
-                    e, s = PAIR(r2, p)
+            # Each batch of a row in three loops (docs/design.md §6): the
+            # pair vectors gathered; the pair function over contiguous
+            # buffers, where LLVM vectorises it (LJ's divisions in vdivpd: a
+            # call at 256 atoms 70 -> 48 µs, AMD Zen 4, the same bits); the
+            # forces scattered.  The list puts each row's pairs within the
+            # cutoff first (PairList.inner_first): the last two loops stop
+            # after the last pair within it, and mask those before it that
+            # are not.
+            for a in range(rowptr[t], rowptr[t + 1], BATCH):
+                m = min(BATCH, rowptr[t + 1] - a)
+                last = 0
+                for h in range(m):
+                    q = U(a + h)
+                    u = U(3) * U(nbr[q])
+                    k = U(3) * U(code[q])
+                    # as ASE: positions[j] - positions[i] + S @ cell
+                    dx = (Xf[u] - x0) + sv[k]
+                    dy = (Xf[u + U(1)] - x1) + sv[k + U(1)]
+                    dz = (Xf[u + U(2)] - x2) + sv[k + U(2)]
+                    bx[h] = dx
+                    by[h] = dy
+                    bz[h] = dz
+                    r2 = dx * dx + dy * dy + dz * dz
+                    br[h] = r2
+                    if typed:
+                        tb = types[nbr[q]]
+                        bt[h] = tb
+                        c2 = cut2[ta, tb]
+                    # NaN is within: the check sum below flags it
+                    last = last if r2 > c2 else h + 1
+                # one species: its parameters' row read once, not in the
+                # loop, where LLVM cannot tell it from the buffers written
+                # and leaves the loop scalar
+                if typed:
+                    for h in range(last):
+                        be[h], bs[h] = _terms(PAIR, SQUARED, params[ta, bt[h]],
+                                              cut2[ta, bt[h]], br[h])
                 else:
-                    r = math.sqrt(r2)
-                    e, dedr = PAIR(r, p)
-                    s = dedr / r
-                erow += e
-                check += s  # r = 0 or NaN makes it non-finite
-                fx = s * dx  # force on t; minus that on u
-                fy = s * dy
-                fz = s * dz
-                ft0 += fx
-                ft1 += fy
-                ft2 += fz
-                lu = U(base + local_rank(j, lo, n))
-                fb[U(3) * lu] -= fx
-                fb[U(3) * lu + U(1)] -= fy
-                fb[U(3) * lu + U(2)] -= fz
-                if want_e:
-                    ebuf[lt] += 0.5 * e
-                    ebuf[lu] += 0.5 * e
-                if not want_w:  # MD needs no virial: 10% of the loop
-                    continue
-                # central forces give a symmetric virial: six components
-                w0 = fx * dx
-                w1 = fy * dy
-                w2 = fz * dz
-                w3 = fy * dz
-                w4 = fx * dz
-                w5 = fx * dy
-                v0 -= w0
-                v1 -= w1
-                v2 -= w2
-                v3 -= w3
-                v4 -= w4
-                v5 -= w5
-                if want_v:
-                    for h in range(2):
-                        a = U(6) * (U(lt) if h == 0 else lu)
-                        vb[a] -= 0.5 * w0
-                        vb[a + U(1)] -= 0.5 * w1
-                        vb[a + U(2)] -= 0.5 * w2
-                        vb[a + U(3)] -= 0.5 * w3
-                        vb[a + U(4)] -= 0.5 * w4
-                        vb[a + U(5)] -= 0.5 * w5
+                    p = params[ta, 0]
+                    cut = cut2[ta, 0]
+                    for h in range(last):
+                        be[h], bs[h] = _terms(PAIR, SQUARED, p, cut, br[h])
+                for h in range(last):
+                    j = nbr[U(a + h)]
+                    e = be[h]
+                    s = bs[h]
+                    dx = bx[h]
+                    dy = by[h]
+                    dz = bz[h]
+                    erow += e
+                    check += s  # r = 0 or NaN makes it non-finite
+                    if check_rmin:
+                        r2 = br[h]
+                        tb = bt[h] if typed else 0
+                        if not r2 > cut2[ta, tb] and r2 < rmin2[ta, tb]:
+                            nlow += 1
+                    fx = s * dx  # force on t; minus that on j
+                    fy = s * dy
+                    fz = s * dz
+                    ft0 += fx
+                    ft1 += fy
+                    ft2 += fz
+                    lu = U(base + local_rank(j, lo, n))
+                    fb[U(3) * lu] -= fx
+                    fb[U(3) * lu + U(1)] -= fy
+                    fb[U(3) * lu + U(2)] -= fz
+                    if want_e:
+                        ebuf[lt] += 0.5 * e
+                        ebuf[lu] += 0.5 * e
+                    if not want_w:  # MD needs no virial: 10% of the loop
+                        continue
+                    # central forces give a symmetric virial: six components
+                    w0 = fx * dx
+                    w1 = fy * dy
+                    w2 = fz * dz
+                    w3 = fy * dz
+                    w4 = fx * dz
+                    w5 = fx * dy
+                    v0 -= w0
+                    v1 -= w1
+                    v2 -= w2
+                    v3 -= w3
+                    v4 -= w4
+                    v5 -= w5
+                    if want_v:
+                        for g in range(2):
+                            b = U(6) * (U(lt) if g == 0 else lu)
+                            vb[b] -= 0.5 * w0
+                            vb[b + U(1)] -= 0.5 * w1
+                            vb[b + U(2)] -= 0.5 * w2
+                            vb[b + U(3)] -= 0.5 * w3
+                            vb[b + U(4)] -= 0.5 * w4
+                            vb[b + U(5)] -= 0.5 * w5
             fb[3 * lt] += ft0
             fb[3 * lt + 1] += ft1
             fb[3 * lt + 2] += ft2
@@ -354,6 +414,10 @@ def _pair_sum(lst, code, pot, chunks, out):
 # The constants the source of the kernels reads (each compiled copy has
 # its own: :func:`_kernel`)
 PAIR = SQUARED = GENERAL = None
+
+#: Pairs of a row handled per batch by the kernel: its six buffers (3 KiB)
+#: stay in L1 whatever the cutoff; 32, 128 and 256 ran alike (AMD Zen 4).
+BATCH = 64
 
 
 def _kernel(name, pair, squared, general, cache):
