@@ -108,18 +108,21 @@ SumOutputs = namedtuple("SumOutputs",
 # carry it compiled in (LLVM inlines it there, and vectorises the loop;
 # numba's IR inlining, inline='always', left the loop scalar)
 @numba.njit(error_model='numpy')
-def _terms(pair, squared, p, cut, r2):
+def _terms(pair, squared, guard, p, cut, r2):
     """A pair's energy (eV) and ``dE/dr / r`` (eV/Å²) from the pair function
     ``pair`` (taking ``r**2`` if ``squared``) with parameters ``p``, at the
     squared distance ``r2`` (Å²); both 0 beyond the squared cutoff ``cut``
-    (NaN is not beyond: the kernel's check flags it)."""
+    (NaN is not beyond: the kernel's check flags it).  With ``guard`` the
+    pair function is not called beyond the cutoff (one that may raise)."""
+    beyond = r2 > cut
+    if guard and beyond:
+        return 0.0, 0.0
     if squared:
         e, s = pair(r2, p)
     else:
         r = math.sqrt(r2)
         e, dedr = pair(r, p)
         s = dedr / r
-    beyond = r2 > cut
     return (0.0 if beyond else e), (0.0 if beyond else s)
 
 
@@ -157,6 +160,11 @@ def _pair_sum(lst, code, pot, chunks, out):
         the kernel compiles in 2.26 s instead of 2.70, and runs 7.05
         against 7.5 ns a pair at 256 atoms, 7.5 against 8.0 at 10,976, the
         same bits.
+    GUARD : bool
+        Whether the pair function is called within the cutoff only (one
+        compiled with numba's default error model, which raises on a
+        division by zero); otherwise it is called on every pair up to the
+        row's last one within the cutoff, and its results beyond it dropped.
     lst : SumList
     code : uint8[M] or int32[M]
         The image code of every pair.
@@ -286,13 +294,13 @@ def _pair_sum(lst, code, pot, chunks, out):
                 # and leaves the loop scalar
                 if typed:
                     for h in range(last):
-                        be[h], bs[h] = _terms(PAIR, SQUARED, params[ta, bt[h]],
+                        be[h], bs[h] = _terms(PAIR, SQUARED, GUARD, params[ta, bt[h]],
                                               cut2[ta, bt[h]], br[h])
                 else:
                     p = params[ta, 0]
                     cut = cut2[ta, 0]
                     for h in range(last):
-                        be[h], bs[h] = _terms(PAIR, SQUARED, p, cut, br[h])
+                        be[h], bs[h] = _terms(PAIR, SQUARED, GUARD, p, cut, br[h])
                 for h in range(last):
                     j = nbr[U(a + h)]
                     e = be[h]
@@ -413,7 +421,7 @@ def _pair_sum(lst, code, pot, chunks, out):
 
 # The constants the source of the kernels reads (each compiled copy has
 # its own: :func:`_kernel`)
-PAIR = SQUARED = GENERAL = None
+PAIR = SQUARED = GENERAL = GUARD = None
 
 #: Pairs of a row handled per batch by the kernel: its six buffers (3 KiB)
 #: stay in L1 whatever the cutoff; 32, 128 and 256 ran alike (AMD Zen 4).
@@ -423,8 +431,8 @@ BATCH = 64
 def _kernel(name, pair, squared, general, cache):
     """``(serial, threaded)`` kernels of :func:`_pair_sum` for the pair
     function ``pair`` (:func:`ase_mlg.parallel.serial_and_parallel`):
-    copies of its code with ``PAIR``, ``SQUARED`` and ``GENERAL`` bound
-    in the copy's globals, named ``name`` (the on-disk cache's key with
+    copies of its code with ``PAIR``, ``SQUARED``, ``GENERAL`` and
+    ``GUARD`` bound in the copy's globals, named ``name`` (the on-disk cache's key with
     ``cache``).
 
     Why copies, not one kernel taking the three as arguments and inlined
@@ -433,7 +441,13 @@ def _kernel(name, pair, squared, general, cache):
     (AMD Zen 4); a global is a constant to numba as a literal argument is,
     so the same branches are pruned before typing."""
     body = _pair_sum
-    constants = dict(PAIR=pair, SQUARED=bool(squared), GENERAL=bool(general))
+    # A pair function compiled with numba's default error model raises on a
+    # division by zero: it is called within the cutoff only (GUARD), as
+    # before the loop was vectorised; one with error_model='numpy' is called
+    # on the listed pairs beyond it too, its results dropped
+    guard = pair.targetoptions.get('error_model', 'python') != 'numpy'
+    constants = dict(PAIR=pair, SQUARED=bool(squared), GENERAL=bool(general),
+                     GUARD=guard)
     copy = FunctionType(body.__code__, dict(body.__globals__, **constants), name)
     copy.__qualname__ = name
     copy.__module__ = body.__module__

@@ -25,7 +25,12 @@ Writing your own pair potential
    Its results count only for ``0 < r <= cutoff`` of the species pair
    (ASE's LJ keeps ``r == rc``; the kernel has no per-pair branch, so a pair
    at ``r = 0`` is evaluated too and then reported as an error), and it must
-   not modify ``p`` (a view of the potential's table).  Truncation, shifting
+   not modify ``p`` (a view of the potential's table).  Compiled with
+   ``error_model='numpy'`` it is also called on listed pairs a little
+   beyond the cutoff (in the Verlet skin), whose results are dropped: the
+   kernel's loop then has no branch and vectorises; with numba's default
+   error model, which raises on a division by zero, it is called within
+   the cutoff only.  Truncation, shifting
    or smoothing at the cutoff is the function's own business (see
    :func:`~ase_mlg.pairfunctions.lennard_jones_shifted`).  With
    ``error_model='numpy'`` a division by zero gives ``inf``, which the

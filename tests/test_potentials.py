@@ -627,6 +627,23 @@ def test_user_non_finite_names_atoms(func):
         pot.evaluate([1, 1, 1], [0, 2], [1, 0], D)
 
 
+@pytest.mark.parametrize('func', [blows_up, raises])
+def test_user_pair_function_beyond_cutoff_dropped(func):
+    # cutoff 1.5 Å, skin 3: atom 0's row lists atom 2 (1 Å) before atom 1
+    # (2 Å); moved within the skin, atom 2 is 2 Å away and atom 1 1 Å.  A
+    # function compiled with error_model='numpy' is evaluated on the pair
+    # now beyond the cutoff (inf) and it is dropped; one that raises is not
+    # called there
+    pot = PairPotential(func, [1.0], cutoffs=1.5)
+    atoms = Atoms('H3', positions=[[0, 0, 0], [0, 0, 2.0], [0, 1.0, 0]])
+    atoms.calc = MLGCalculator(pot, skin=3.0)
+    assert atoms.get_potential_energy() == -1.0
+    atoms.positions = [[0, 0, 0], [0, 0, 1.0], [0, 2.0, 0]]
+    assert atoms.get_potential_energy() == -1.0
+    assert np.array_equal(atoms.get_forces(), np.zeros((3, 3)))
+    assert atoms.calc.stats["list_builds"] == 1
+
+
 @pytest.mark.parametrize('kwargs, message', [
     (dict(sigma=-1.0), 'sigma must be > 0'),
     (dict(sigma=0.0), 'sigma must be > 0'),
