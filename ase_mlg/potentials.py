@@ -505,23 +505,26 @@ class PairPotential:
                        or self.params.shape[0] > 1)
         kernel = pair_kernel(self.pair, threaded, general, self.squared)
         lst = SumList(X, types, rowptr, nbr, svec, order)
-        pot = SumTables(self.squared, self.params, self._cut2, self._rmin2,
-                         self._check_rmin, bool(virial or virials))
+        pot = self._tables(bool(virial or virials))
         out = {'forces': np.empty((n, 3))}
-        e_out = np.empty(n if energies else 0)
-        v_out = np.empty((n if virials else 0, 6))
-        part = np.zeros((nchunk, 9))
+        e_out = np.empty(n) if energies else _NONE
+        v_out = np.empty((n, 6)) if virials else _NONE6
+        part = np.empty((nchunk, 9))  # every entry written
         try:
             fbuf, ebuf, vbuf = chunks.buffers(energies, virials)
             sums = SumOutputs(fbuf, ebuf, vbuf, part, out['forces'], e_out,
                               v_out)
+            # plain tuples: numba types a named tuple's fields in Python at
+            # every call (3 µs of a call at 256 atoms)
+            args = (tuple(lst), code, tuple(pot), tuple(chunks.arrays), tuple(sums))
             if threaded:
                 with dynamic_schedule():
-                    kernel(lst, code, pot, chunks.arrays, sums)
+                    kernel(*args)
             else:  # the schedule is the threads' only: 5 µs a call saved
-                kernel(lst, code, pot, chunks.arrays, sums)
+                kernel(*args)
+            chunk_sums = part.tolist()
             if any(c[8] or not (math.isfinite(c[0]) and math.isfinite(c[7]))
-                   for c in part.tolist()):
+                   for c in chunk_sums):
                 q, why = first_bad_pair(self.pair, lst, code, pot)
                 if q < 0:
                     raise ValueError('non-finite total energy or force '
@@ -535,7 +538,7 @@ class PairPotential:
                 raise
             raise self._pair_error(lst, code, q, PairError.NON_FINITE,
                                    err) from None
-        out['energy'] = math.fsum(part[:, 0])
+        out['energy'] = math.fsum([c[0] for c in chunk_sums])
         if virial or virials:
             out['virial'] = part[:, 1:7].sum(axis=0)
         if energies:
@@ -543,6 +546,17 @@ class PairPotential:
         if virials:
             out['virials_voigt'] = v_out
         return out
+
+    def _tables(self, want_virial):
+        """The kernel's :class:`~ase_mlg.pairsum.SumTables`, made once per
+        ``want_virial`` (the tables never change: a new setting is a new
+        potential)."""
+        cache = self.__dict__.setdefault('_sum_tables', {})
+        pot = cache.get(want_virial)
+        if pot is None:
+            pot = cache[want_virial] = SumTables(self.squared, self.params, self._cut2,
+                                                 self._rmin2, self._check_rmin, want_virial)
+        return pot
 
     @staticmethod
     def _pair_geometry(lst, code, q):
@@ -635,6 +649,11 @@ class PairPotential:
             return (f'PairPotential(pair={self.pair.__name__}, '
                     f'species={species}, cutoff={self.cutoff:g})')
         return f'{kind}({", ".join(f"{k}={v!r}" for k, v in d.items())})'
+
+
+# The outputs not asked for: zero-length, so never written
+_NONE = np.empty(0)
+_NONE6 = np.empty((0, 6))
 
 
 def _refuse_unknown(name, kwargs, accepted):
