@@ -50,7 +50,7 @@ from .chunks import local_rank
 from .parallel import serial_and_parallel, use_threads
 
 __all__ = ["SumList", "SumTables", "SumOutputs", "PairError",
-           "pair_kernel", "is_built_in", "built_in_form", "first_bad_pair",
+           "pair_kernel", "is_built_in", "built_in_form", "first_bad_pair", "pair_geometry",
            "shift_vectors", "pair_vectors"]
 
 
@@ -494,6 +494,15 @@ def first_bad_pair(pair, lst, code, pot):
             if not (math.isfinite(e) and math.isfinite(s)):
                 return q, PairError.NON_FINITE
     return -1, PairError.OK
+
+
+def pair_geometry(lst, code, q):
+    """Rows ``(t, u)`` and distance (Å) of pair ``q`` of ``lst`` (a
+    :class:`SumList`, image codes ``code``): the error path's message."""
+    t = int(np.searchsorted(lst.rowptr, q, side='right') - 1)
+    u = int(lst.nbr[q])
+    D = (lst.X[u] - lst.X[t]) + lst.svec[code[q]]
+    return t, u, float(np.sqrt(D @ D))
 
 
 def shift_vectors(shifts, cell):

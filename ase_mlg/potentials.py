@@ -25,12 +25,10 @@ Writing your own pair potential
    Its results count only for ``0 < r <= cutoff`` of the species pair
    (ASE's LJ keeps ``r == rc``; the kernel has no per-pair branch, so a pair
    at ``r = 0`` is evaluated too and then reported as an error), and it must
-   not modify ``p`` (a view of the potential's table).  Compiled with
-   ``error_model='numpy'`` it is also called on listed pairs a little
-   beyond the cutoff (in the Verlet skin), whose results are dropped: the
-   kernel's loop then has no branch and vectorises; with numba's default
-   error model, which raises on a division by zero, it is called within
-   the cutoff only.  Truncation, shifting
+   not modify ``p`` (a view of the potential's table).  With
+   ``error_model='numpy'`` it is also called on listed pairs just beyond
+   the cutoff, results dropped (the loop vectorises); with numba's default
+   error model, which raises, within the cutoff only.  Truncation, shifting
    or smoothing at the cutoff is the function's own business (see
    :func:`~ase_mlg.pairfunctions.lennard_jones_shifted`).  With
    ``error_model='numpy'`` a division by zero gives ``inf``, which the
@@ -86,7 +84,7 @@ from numba.core.dispatcher import Dispatcher
 from .pairfunctions import (lennard_jones_shifted, lennard_jones_shifted_r2,
                             lennard_jones_smooth, lennard_jones_smooth_r2, morse)
 from .pairsum import (PairError, SumList, SumOutputs, SumTables, built_in_form,
-                      first_bad_pair, is_built_in, pair_kernel)
+                      first_bad_pair, is_built_in, pair_geometry, pair_kernel)
 from .parallel import dynamic_schedule
 from .chunks import RowChunks, row_chunks
 
@@ -232,6 +230,10 @@ class PairPotential:
         self._cut2 = self.cutoffs ** 2
         self._rmin2 = self.rmin ** 2
         self._check_rmin = bool((self.rmin > 0).any())
+        # the kernel's tables by want_virial, made once: a new setting is a
+        # new potential
+        self._sum_tables = {w: SumTables(self.squared, self.params, self._cut2, self._rmin2,
+                                         self._check_rmin, w) for w in (False, True)}
         self._check_pair_function()
 
     def _init_agnostic(self, params, cutoffs, rmin):
@@ -505,17 +507,15 @@ class PairPotential:
                        or self.params.shape[0] > 1)
         kernel = pair_kernel(self.pair, threaded, general, self.squared)
         lst = SumList(X, types, rowptr, nbr, svec, order)
-        pot = self._tables(bool(virial or virials))
+        pot = self._sum_tables[bool(virial or virials)]
         out = {'forces': np.empty((n, 3))}
         e_out = np.empty(n) if energies else _NONE
         v_out = np.empty((n, 6)) if virials else _NONE6
         part = np.empty((nchunk, 9))  # every entry written
         try:
             fbuf, ebuf, vbuf = chunks.buffers(energies, virials)
-            sums = SumOutputs(fbuf, ebuf, vbuf, part, out['forces'], e_out,
-                              v_out)
-            # plain tuples: numba types a named tuple's fields in Python at
-            # every call (3 µs of a call at 256 atoms)
+            sums = SumOutputs(fbuf, ebuf, vbuf, part, out['forces'], e_out, v_out)
+            # plain tuples: numba types named tuples' fields in Python (3 µs)
             args = (tuple(lst), code, tuple(pot), tuple(chunks.arrays), tuple(sums))
             if threaded:
                 with dynamic_schedule():
@@ -547,29 +547,9 @@ class PairPotential:
             out['virials_voigt'] = v_out
         return out
 
-    def _tables(self, want_virial):
-        """The kernel's :class:`~ase_mlg.pairsum.SumTables`, made once per
-        ``want_virial`` (the tables never change: a new setting is a new
-        potential)."""
-        cache = self.__dict__.setdefault('_sum_tables', {})
-        pot = cache.get(want_virial)
-        if pot is None:
-            pot = cache[want_virial] = SumTables(self.squared, self.params, self._cut2,
-                                                 self._rmin2, self._check_rmin, want_virial)
-        return pot
-
-    @staticmethod
-    def _pair_geometry(lst, code, q):
-        """Rows ``(t, u)`` and distance (Å) of pair ``q`` of ``lst``
-        (a :class:`ase_mlg.pairsum.SumList`, image codes ``code``)."""
-        t = int(np.searchsorted(lst.rowptr, q, side='right') - 1)
-        u = int(lst.nbr[q])
-        D = (lst.X[u] - lst.X[t]) + lst.svec[code[q]]
-        return t, u, float(np.sqrt(D @ D))
-
     def _find_raising_pair(self, lst, code):
         for q in range(int(lst.rowptr[-1])):
-            t, u, r = self._pair_geometry(lst, code, q)
+            t, u, r = pair_geometry(lst, code, q)
             ta, tb = lst.types[t], lst.types[u]
             if 0 < r <= self.cutoffs[ta, tb]:
                 try:
@@ -588,7 +568,7 @@ class PairPotential:
     def _pair_error(self, lst, code, q, why, cause=None):
         """The ValueError describing why pair ``q`` of ``lst`` failed
         (``why`` a :class:`ase_mlg.pairsum.PairError`)."""
-        t, u, r = self._pair_geometry(lst, code, q)
+        t, u, r = pair_geometry(lst, code, q)
         ta, tb = lst.types[t], lst.types[u]
         where = (f'atoms {lst.order[t]} and {lst.order[u]} at distance '
                  f'{r:.6g} Å')
@@ -652,8 +632,7 @@ class PairPotential:
 
 
 # The outputs not asked for: zero-length, so never written
-_NONE = np.empty(0)
-_NONE6 = np.empty((0, 6))
+_NONE, _NONE6 = np.empty(0), np.empty((0, 6))
 
 
 def _refuse_unknown(name, kwargs, accepted):
