@@ -151,16 +151,19 @@ class PairList:
 
     def gather_check(self, positions, cell, ref=None, M=None):
         """``(X, umax)``: :meth:`positions`, and in the same pass the
-        largest displacement beyond the affine cell map ``M`` since ``ref``
-        (the positions in atom order when the list was built), Å; NaN if any
-        position is NaN; 0 without ``ref``.  The gather and the
-        list-validity test share one pass over the positions (a force call
-        makes others: docs/design.md §6)."""
+        largest displacement beyond the affine cell map ``M`` (None: the
+        cell has not changed) since ``ref`` (the positions in atom order
+        when the list was built), Å; NaN if any position is NaN; 0 without
+        ``ref``.  The gather and the list-validity test share one pass over
+        the positions (a force call makes others: docs/design.md §6)."""
         n = len(self.order)
         X = np.empty((n, 3))
         cell = np.ascontiguousarray(cell, dtype=np.float64)
         if ref is None:
-            ref, M = _NO_REF, _EYE
+            ref = _NO_REF
+        affine = M is not None
+        if not affine:
+            M = _EYE
         if self._by_atom is None:  # each atom's rank and image, atom order
             rank = np.empty(n, np.int64)
             rank[self.order] = np.arange(n)
@@ -171,10 +174,10 @@ class PairList:
         if use_threads("atoms", n):
             worst = np.empty(4 * threads_for("atoms", n))
             with dynamic_schedule():
-                _gather_threaded(positions, rank, images, cell, ref, M, X, worst)
+                _gather_threaded(positions, rank, images, cell, ref, M, affine, X, worst)
         else:
             worst = np.empty(1)
-            _gather_serial(positions, rank, images, cell, ref, M, X, worst)
+            _gather_serial(positions, rank, images, cell, ref, M, affine, X, worst)
         if len(worst) == 1:  # the serial gather: one number, no numpy passes
             w = float(worst[0])
             return X, (w if w != w else max(w, 0.0))
@@ -332,13 +335,14 @@ def flat(typingctx, a):
     return ret(a), codegen
 
 
-def _gather_atoms(positions, rank, images, cell, ref, M, X, worst):
+def _gather_atoms(positions, rank, images, cell, ref, M, affine, X, worst):
     """Write ``X[rank[a]] = x[a] + images[a] @ cell`` (``images`` in atom
     order) and, when ``ref`` has rows, find how far each atom moved beyond
     the affine map ``M`` of the cell since ``ref`` (its positions then, atom
-    order: ``x - ref @ M``; the list's images cancel, ``M`` is the identity
-    in NVE): ``worst`` gets the largest displacement of each of its chunks
-    of atoms (Å), NaN if any is NaN.  A max does not depend on the chunking.
+    order: ``x - ref @ M``, or ``x - ref`` without ``affine``, a cell that
+    has not changed, as in NVE: the same bits, 64 -> 43 µs at 10,976 atoms
+    on AMD Zen 4; the list's images cancel): ``worst`` gets the largest
+    displacement of each of its chunks of atoms (Å), NaN if any is NaN.  A max does not depend on the chunking.
     The pass reads in atom order and scatters the writes: atoms in a random
     order (an ASE system after a long liquid run) made a gather in row
     order wait on memory, 39 against 6 ns an atom at 10^6 atoms."""
@@ -379,9 +383,14 @@ def _gather_atoms(positions, rank, images, cell, ref, M, X, worst):
             r0 = r[i]
             r1 = r[i + U(1)]
             r2 = r[i + U(2)]
-            d0 = x0 - (r0 * M00 + r1 * M10 + r2 * M20)
-            d1 = x1 - (r0 * M01 + r1 * M11 + r2 * M21)
-            d2 = x2 - (r0 * M02 + r1 * M12 + r2 * M22)
+            if affine:
+                d0 = x0 - (r0 * M00 + r1 * M10 + r2 * M20)
+                d1 = x1 - (r0 * M01 + r1 * M11 + r2 * M21)
+                d2 = x2 - (r0 * M02 + r1 * M12 + r2 * M22)
+            else:
+                d0 = x0 - r0
+                d1 = x1 - r1
+                d2 = x2 - r2
             s = d0 * d0
             s += d1 * d1
             s += d2 * d2

@@ -87,3 +87,29 @@ def test_ignored_keywords_are_refused_naming_what_is_taken(make, names):
         make()
     for name in names:
         assert name in str(info.value)
+
+
+@pytest.mark.parametrize("n", [3, 50, 3000, 9000])
+@pytest.mark.parametrize("dtype", [np.float64, np.int64, np.bool_])
+def test_same_is_array_equal(n, dtype):
+    # small arrays by bytes or lists, large ones (over 64 KiB) word by word,
+    # compiled: the answer is np.array_equal's, but for the sign of a large
+    # float zero (stricter) and identical NaN bits (equal, as ASE's check)
+    from ase_mlg.geometry import same
+    rng = np.random.default_rng(n)
+    a = (rng.normal(size=(n, 3)) * 10).astype(dtype)
+    for where in (0, n // 2, n - 1):
+        b = a.copy()
+        b[where, 2] = b[where, 2] + 1 if dtype is not np.bool_ else not b[where, 2]
+        assert not same(a, b) and not same(b, a)
+    assert same(a, a.copy()) and not same(a, a[:-1])
+    assert same(a, a.astype(np.float32)) == np.array_equal(a, a.astype(np.float32))
+    if dtype is np.float64:
+        z = a.copy()
+        z[-1, -1] = 0.0
+        nz = z.copy()
+        nz[-1, -1] = -0.0
+        assert same(z, nz) == (z.nbytes <= 1 << 16)
+        nan = z.copy()
+        nan[-1, -1] = np.nan
+        assert same(nan, nan.copy()) == (z.nbytes > 1 << 16)
