@@ -281,10 +281,9 @@ def _pair_sum(lst, code, pot, chunks, out):
                         be[h], bs[h] = _terms(PAIR, SQUARED, GUARD, params[ta, bt[h]],
                                               cut2[ta, bt[h]], br[h])
                 else:
-                    p = params[ta, 0]
-                    cut = cut2[ta, 0]
+                    p = params[0, 0]
                     for h in range(last):
-                        be[h], bs[h] = _terms(PAIR, SQUARED, GUARD, p, cut, br[h])
+                        be[h], bs[h] = _terms(PAIR, SQUARED, GUARD, p, c2, br[h])
                 for h in range(last):
                     j = nbr[U(a + h)]
                     e = be[h]
