@@ -1,5 +1,5 @@
-"""The unit of parallel work of a pair sum: chunks of rows, the window of
-ranks each chunk touches, and the reduction of the chunks' buffers.
+"""The unit of parallel work of a pair sum: chunks of rows, the ranks
+each chunk touches, and the reduction of the chunks' buffers.
 
 A half list in grid order (:class:`~ase_mlg.pairlist.PairList`) has the
 MLG's promise built in: the rows of a chunk of consecutive ranks are atoms
@@ -7,20 +7,21 @@ close in space, and their neighbours are close to them in rank.  A chunk's
 pairs therefore touch a narrow *window* of ranks (its rows and the next
 ranks within the list radius, plus the ranks across a periodic seam), so
 its force buffer needs to cover only that window, not all N atoms
-(docs/design.md §8).  Windows are cyclic intervals of ranks: a chunk at the
-start of the grid whose neighbours sit across the seam at its end gets one
-interval that wraps, not two that span everything between.
+(docs/design.md §8).  A window is the set of rank *bins* (``2**shift``
+consecutive ranks, at most :data:`_NBIN` bins) that the chunk's rows and
+their neighbours fall in; the buffer holds those bins one after the other.
+A contiguous interval from a chunk's first rank to its farthest neighbour
+would also hold the ranks in between that no pair reaches (the MLG's
+planes bend: on 10^6 argon atoms a few pairs reach six logical planes
+ahead, most three): 5.4 N entries at 64 chunks against 3.1 N for the bins
+touched (bins of 256 ranks), 121 against 70 MB of force buffers, the
+same bits.
 
-Buffers then cost ``sum(width) ~ (1 + overlap) N`` entries, instead of
-``chunks x N``: measured on argon liquids (a = 5.26 Å, rc + skin = 9.5 Å),
-1.5 N at 2 chunks and 3.9 N at 8 on 6,912 atoms, 1.3 N and 3.3 N at 2 and
-16 chunks on 10^5, 2.1 N and 5.3 N at 16 and 64 chunks on 10^6 (a chunk's
-halo of neighbours stays rc + skin deep, so each chunk adds about the same
-width).  The reduction sums, for every rank, the buffers of the chunks
-whose windows cover it, in chunk order: the window edges cut the ranks into
-*segments* with a fixed set of covering chunks, so the reduction reads each
-buffer entry once and the result does not depend on which thread ran which
-chunk.
+Buffers then cost ``~ (1 + overlap) N`` entries, instead of ``chunks x
+N``.  The reduction sums, for every rank, the buffers of the chunks that
+touched its bin, in chunk order (a chunk whose window missed the rank
+added 0.0 there, which changes no sum): it reads each buffer entry once
+and the result does not depend on which thread ran which chunk.
 
 The chunks are a function of the list alone (:func:`row_chunks`): its pair
 count, its atom count and the window budget, never numba's thread count.
@@ -33,7 +34,7 @@ thread count (tests/test_thread_determinism.py).
 from collections import namedtuple
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from .parallel import THRESHOLDS, serial_and_parallel, use_threads
 
@@ -47,8 +48,8 @@ __all__ = ["Chunks", "RowChunks", "row_chunks", "chunk_count",
 #: reduction than they balance).
 PAIRS_PER_CHUNK = 20_000
 #: Most chunks of a pair sum: 64 threads get one each on 10^6 atoms
-#: (argon at a = 5.26 Å, rc + skin = 9.5 Å: 44 million pairs, 64 windows
-#: take 5.3 N; at 5.72 Å 39 million and 5.4 N).
+#: (argon at a = 5.72 Å, rc + skin = 9.5 Å: 39 million pairs, 64 windows
+#: take 3.1 N).
 MAX_CHUNKS = 64
 #: Fewest chunks of a list long enough to thread
 #: (:data:`ase_mlg.parallel.THRESHOLDS` ``"pairs"``): two windows take at
@@ -57,25 +58,30 @@ MIN_CHUNKS = 2
 #: Most buffer entries, in units of N, that the windows of all chunks may
 #: take: fewer chunks are used where more would take more (never fewer
 #: than :data:`MIN_CHUNKS`).  Windows widen as chunks thin (a chunk's halo
-#: of neighbours stays rc + skin deep): on 10^6 argon atoms 16 chunks take
-#: 2.1 N, 64 take 5.3 N (128 MB of force buffers at 24 bytes an entry, 430
-#: MB with per-atom energies and virials at 80) and 256 take 17 N; 6 N is
-#: what 64 chunks need there (3 N would leave 29).  Smaller lists fill the
-#: budget with fewer chunks: 13 on 6,912 atoms, 35 on 108,000 (5.9 N each).
-#: One thread runs the same windows (validation/chunk_cost.py measures the
-#: cost against one chunk).
+#: of neighbours stays rc + skin deep).  Argon at a = 5.72 Å, rc + skin =
+#: 9.5 Å, entries per N at 2, 8, 16, 64 and 256 chunks: 1.1, 1.4, 1.8, 3.1
+#: and 4.1 on 10^6 atoms (64 chunks: 70 MB of force buffers at 24 bytes an
+#: entry, 235 MB with per-atom energies and virials at 80); 1.2, 1.7, 2.3,
+#: 3.2 and 6.0 on 108,000; 1.3, 2.4, 3.2, 5.9 and 10.5 on 6,912.  The lists
+#: of liquids take their :func:`chunk_count` within the budget (13 chunks
+#: on 6,912 atoms, 2.9 N; 21 on 10,976, 3.4 N; 64 on 108,000, 3.2 N); it
+#: bounds lists whose neighbours lie far in rank.  One thread runs the
+#: same windows (validation/chunk_cost.py measures the cost against one
+#: chunk).
 WINDOW_BUDGET = 6.0
-_NBIN = 4096  # rank bins of the window search: windows over-cover by < 2 bins
+_NBIN = 4096  # most rank bins: bins of 256 ranks on 10^6 atoms, 1 below 4,097
 
 #: The arrays the pair kernel reads (one argument for numba).
 #: ``rows`` int64[C + 1] (chunk ``c`` is rows ``rows[c]:rows[c + 1]``),
-#: ``lo``/``width`` int64[C] (window: ranks ``lo, lo + 1, ...`` cyclically,
-#: ``width`` of them), ``offset`` int64[C + 1] (window ``c`` is buffer
-#: entries ``offset[c]:offset[c + 1]``), ``seg`` int64[S + 1] (segment
-#: edges, 0 ... N), ``cover_ptr`` int64[S + 1] and ``cover`` int64[*] (the
-#: chunks covering segment ``s``, ascending), ``thread`` int64[C] (out: the
-#: numba thread that ran chunk ``c``).
-Chunks = namedtuple("Chunks", "rows lo width offset seg cover_ptr cover thread")
+#: ``slot`` int64[C, B] (the buffer entry of the first rank of bin ``b``
+#: in chunk ``c``'s window, -1 where the chunk does not touch the bin: rank
+#: ``r`` is entry ``slot[c, r >> shift] + (r & (2**shift - 1))``),
+#: ``shift`` int (bins of ``2**shift`` ranks), ``offset`` int64[C + 1]
+#: (chunk ``c``'s buffer is entries ``offset[c]:offset[c + 1]``),
+#: ``cover_ptr`` int64[B + 1] and ``cover`` int64[*] (the chunks touching
+#: bin ``b``, ascending), ``thread`` int64[C] (out: the numba thread that
+#: ran chunk ``c``).
+Chunks = namedtuple("Chunks", "rows slot shift offset cover_ptr cover thread")
 
 
 def chunk_count(npairs):
@@ -89,55 +95,24 @@ def chunk_count(npairs):
     return int(min(MAX_CHUNKS, max(MIN_CHUNKS, npairs // PAIRS_PER_CHUNK)))
 
 
-def _mark_windows(rowptr, nbr, rows, shift, marks, lo, width):
-    """Window of every chunk: mark the rank bins (``2**shift`` ranks each)
-    its rows and their neighbours fall in, then drop the largest cyclic run
-    of empty bins."""
+def _mark_bins(rowptr, nbr, rows, shift, marks):
+    """The rank bins (``2**shift`` ranks each) that every chunk touches:
+    those of its rows and of their neighbours."""
     binsize = 1 << shift
-    n = rowptr.shape[0] - 1
-    nbin = marks.shape[1]
     for c in prange(rows.shape[0] - 1):
         m = marks[c]
         m[:] = 0
         r0 = rows[c]
         r1 = rows[c + 1]
         if r1 <= r0:
-            lo[c] = r0 % max(n, 1)
-            width[c] = 0
             continue
         for b in range(r0 // binsize, (r1 - 1) // binsize + 1):
             m[b] = 1
         for q in range(rowptr[r0], rowptr[r1]):
             m[nbr[q] >> shift] = 1
-        first = r0 // binsize  # a marked bin: start the cyclic scan there
-        gap_start = 0
-        gap_len = 0
-        run = 0
-        for s in range(1, nbin + 1):
-            b = (first + s) % nbin
-            if m[b] == 0:
-                run += 1
-            else:
-                if run > gap_len:
-                    gap_len = run
-                    gap_start = (b - run) % nbin
-                run = 0
-        if gap_len == 0:
-            lo[c] = 0
-            width[c] = n
-            continue
-        start_bin = (gap_start + gap_len) % nbin
-        last_bin = (gap_start - 1) % nbin
-        start = start_bin * binsize
-        end = min((last_bin + 1) * binsize, n)
-        w = end - start
-        if w <= 0:
-            w += n
-        lo[c] = start
-        width[c] = w
 
 
-_mark_serial, _mark_threaded = serial_and_parallel(_mark_windows)
+_mark_serial, _mark_threaded = serial_and_parallel(_mark_bins)
 
 
 def _chunks(rowptr, nbr, nchunk):
@@ -149,29 +124,26 @@ def _chunks(rowptr, nbr, nchunk):
     rows = np.searchsorted(rowptr, np.linspace(0, m, nchunk + 1)).astype(np.int64)
     rows[0], rows[-1] = 0, max(n, 0)
     np.maximum.accumulate(rows, out=rows)
-    lo = np.zeros(nchunk, np.int64)
-    width = np.zeros(nchunk, np.int64)
+    shift = max(0, int(np.ceil(np.log2(max(n, 1) / _NBIN))))
+    nbin = max(1, -(-n // (1 << shift)))
     if nchunk == 1:
-        width[:] = n  # one chunk: the whole list, no search
+        marks = np.ones((1, nbin), np.uint8)  # one chunk: every bin, no search
     else:
-        shift = max(0, int(np.ceil(np.log2(max(n, 1) / _NBIN))))
-        nbin = -(-n // (1 << shift))
         marks = np.empty((nchunk, nbin), np.uint8)
         kernel = _mark_threaded if use_threads("marks", m) else _mark_serial
-        kernel(rowptr, nbr, rows, shift, marks, lo, width)
+        kernel(rowptr, nbr, rows, shift, marks)
+    # a chunk's buffer holds its touched bins one after the other, in bin
+    # order: slot[c, b] is the entry of bin b's first rank (-1: untouched)
+    counts = marks.sum(axis=1, dtype=np.int64)
     offset = np.zeros(nchunk + 1, np.int64)
-    np.cumsum(width, out=offset[1:])
-    live = width > 0
-    edges = np.concatenate(([0, n], lo[live], (lo[live] + width[live]) % max(n, 1)))
-    seg = np.unique(edges[(edges >= 0) & (edges <= n)]).astype(np.int64)
-    if len(seg) < 2:
-        seg = np.array([0, n], np.int64)
-    starts = seg[:-1]
-    covered = (((starts[:, None] - lo[None, :]) % max(n, 1)) < width[None, :])
-    cover_ptr = np.zeros(len(starts) + 1, np.int64)
+    np.cumsum(counts << shift, out=offset[1:])
+    within = (np.cumsum(marks, axis=1, dtype=np.int64) - 1) << shift
+    slot = np.where(marks.astype(bool), within + offset[:-1, None], -1)
+    covered = marks.T.astype(bool)
+    cover_ptr = np.zeros(nbin + 1, np.int64)
     np.cumsum(covered.sum(axis=1), out=cover_ptr[1:])
     cover = np.nonzero(covered)[1].astype(np.int64)  # row-major: chunk order
-    return Chunks(rows, lo, width, offset, seg, cover_ptr, cover,
+    return Chunks(rows, np.ascontiguousarray(slot), shift, offset, cover_ptr, cover,
                   np.zeros(nchunk, np.int64))
 
 
@@ -198,7 +170,7 @@ class RowChunks:
 
     def __init__(self, rowptr, nbr, nchunk):
         self.arrays = _chunks(rowptr, nbr, nchunk)
-        self.nchunk = len(self.arrays.lo)
+        self.nchunk = len(self.arrays.rows) - 1
         self.entries = int(self.arrays.offset[-1])
         self._buffers = {}
 
@@ -246,10 +218,3 @@ def row_chunks(rowptr, nbr, nthreads=None):
         nchunk = max(MIN_CHUNKS, min(chunks.nchunk - 1, fit))
         chunks = RowChunks(rowptr, nbr, nchunk)
     return chunks
-
-
-@njit(cache=True)
-def local_rank(r, lo, n):
-    """Index of rank ``r`` in the cyclic window starting at rank ``lo``."""
-    x = r - lo
-    return x + n if x < 0 else x

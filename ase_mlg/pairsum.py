@@ -46,7 +46,6 @@ from numba import prange
 
 from .pairfunctions import lennard_jones_shifted_r2, lennard_jones_smooth_r2, morse
 from .pairlist import flat, pair_vector
-from .chunks import local_rank
 from .parallel import serial_and_parallel, use_threads
 
 __all__ = ["SumList", "SumTables", "SumOutputs", "PairError",
@@ -139,8 +138,8 @@ def _pair_sum(lst, code, pot, chunks, out):
     ``chunks`` (about equal pair counts); each chunk accumulates into its
     own window of the buffers (``out.fbuf`` and ``out.ebuf``/``out.vbuf``
     when per-atom energies or virials are wanted): entry
-    ``offset[c] + local_rank(r)`` is rank ``r`` of chunk ``c``.  The windows
-    are then summed per rank in chunk order and scattered to atom order
+    ``slot[c, r >> shift] + (r & mask)`` is rank ``r`` of chunk ``c``.  The
+    windows are then summed per rank in chunk order and scattered to atom order
     (``forces[order[t]]``), so the result is the same on every run with the
     same chunks, whichever thread ran which chunk.
 
@@ -172,7 +171,7 @@ def _pair_sum(lst, code, pot, chunks, out):
         The image code of every pair.
     pot : SumTables
     chunks : ase_mlg.chunks.Chunks
-        The chunks, their windows and the reduction's segments; the kernel
+        The chunks, their windows and the bins each covers; the kernel
         writes ``chunks.thread`` (the numba thread of each chunk).
     out : SumOutputs
         Written: every field (``part`` per chunk; :func:`first_bad_pair`
@@ -184,10 +183,11 @@ def _pair_sum(lst, code, pot, chunks, out):
     # tuple's fields in Python at every call, 5.4 µs of dispatch against 2.3
     X, types, rowptr, nbr, svec, order = lst
     _, params, cut2, rmin2, check_rmin, want_virial = pot
-    rows, wlo, _, offset, seg, cover_ptr, cover, thread = chunks
+    rows, slot, shift, offset, cover_ptr, cover, thread = chunks
+    mask = (1 << shift) - 1
     fbuf, ebuf, vbuf, part, forces, energies, virials = out
     n = X.shape[0]
-    nchunk = wlo.shape[0]
+    nchunk = slot.shape[0]
     if GENERAL:
         want_e = ebuf.shape[0] > 0
         want_v = vbuf.shape[0] > 0
@@ -209,7 +209,7 @@ def _pair_sum(lst, code, pot, chunks, out):
     for c in prange(nchunk):
         thread[c] = numba.get_thread_id()
         base = offset[c]
-        lo = wlo[c]
+        sl = slot[c]
         for e in range(3 * base, 3 * offset[c + 1]):
             fb[e] = 0.0
         if want_e:
@@ -239,7 +239,7 @@ def _pair_sum(lst, code, pot, chunks, out):
             x0 = Xf[3 * t]
             x1 = Xf[3 * t + 1]
             x2 = Xf[3 * t + 2]
-            lt = base + local_rank(t, lo, n)
+            lt = sl[t >> shift] + (t & mask)
             ta = types[t] if typed else 0
             ft0 = ft1 = ft2 = 0.0
             erow = 0.0
@@ -304,7 +304,7 @@ def _pair_sum(lst, code, pot, chunks, out):
                     ft0 += fx
                     ft1 += fy
                     ft2 += fz
-                    lu = U(base + local_rank(j, lo, n))
+                    lu = U(sl[j >> shift] + (j & mask))
                     fb[U(3) * lu] -= fx
                     fb[U(3) * lu + U(1)] -= fy
                     fb[U(3) * lu + U(2)] -= fz
@@ -353,33 +353,20 @@ def _pair_sum(lst, code, pot, chunks, out):
         part[c, 6] = v5
         part[c, 7] = check
         part[c, 8] = nlow
-    # sum the windows covering each rank in chunk order, back in atom order;
-    # pieces of ranks, each walking the segments it crosses
+    # sum the windows touching each rank's bin in chunk order, back in atom
+    # order; pieces of ranks, each walking the bins it crosses
     npiece = nchunk
     ff = flat(forces)
     for piece in prange(npiece):
         t0 = piece * n // npiece
         t1 = (piece + 1) * n // npiece
-        if t1 <= t0:
-            continue
-        # the last segment starting at or before t0, by bisection (numba's
-        # np.searchsorted compiles for 1.5 s from an empty cache)
-        left, right = 0, seg.shape[0]
-        while left < right:
-            mid = (left + right) >> 1
-            if seg[mid] <= t0:
-                left = mid + 1
-            else:
-                right = mid
-        s = left - 1
         for t in range(t0, t1):
-            while seg[s + 1] <= t:
-                s += 1
+            b = t >> shift
+            r = t & mask
             a = order[t]
             f0 = f1 = f2 = 0.0
-            for w in range(U(cover_ptr[s]), U(cover_ptr[s + 1])):
-                c = cover[w]
-                e = U(3) * U(offset[c] + local_rank(t, wlo[c], n))
+            for w in range(U(cover_ptr[b]), U(cover_ptr[b + 1])):
+                e = U(3) * U(slot[cover[w], b] + r)
                 f0 += fb[e]
                 f1 += fb[e + U(1)]
                 f2 += fb[e + U(2)]
@@ -389,16 +376,14 @@ def _pair_sum(lst, code, pot, chunks, out):
             ff[i + U(2)] = f2
             if want_e:
                 es = 0.0
-                for w in range(cover_ptr[s], cover_ptr[s + 1]):
-                    c = cover[w]
-                    es += ebuf[offset[c] + local_rank(t, wlo[c], n)]
+                for w in range(cover_ptr[b], cover_ptr[b + 1]):
+                    es += ebuf[slot[cover[w], b] + r]
                 energies[a] = es
             if want_v:
                 for x in range(6):
                     vs = 0.0
-                    for w in range(cover_ptr[s], cover_ptr[s + 1]):
-                        c = cover[w]
-                        vs += vbuf[offset[c] + local_rank(t, wlo[c], n), x]
+                    for w in range(cover_ptr[b], cover_ptr[b + 1]):
+                        vs += vbuf[slot[cover[w], b] + r, x]
                     virials[a, x] = vs
 
 

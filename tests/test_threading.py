@@ -194,8 +194,10 @@ def test_show_config_and_cli_info():
 
 @pytest.mark.parametrize("nchunk", [2, 5, 16])
 def test_windows_cover_every_pair_and_are_narrow(nchunk):
-    """Every chunk's window holds its rows and every neighbour of them, and
-    on a periodic liquid the windows together stay far below nchunk x N."""
+    """Every chunk's window holds its rows and every neighbour of them at
+    distinct entries of its own part of the buffer, each bin's cover lists
+    exactly the chunks that touch it, and on a periodic liquid the windows
+    together stay far below nchunk x N."""
     import numpy as np
     from ase.build import bulk
     from ase_mlg import MLGCalculator
@@ -209,13 +211,18 @@ def test_windows_cover_every_pair_and_are_narrow(nchunk):
     pl = atoms.calc.verlet_list.pairs
     ch = RowChunks(pl.rowptr, pl.nbr, nchunk)
     a, n = ch.arrays, pl.natoms
+    mask = (1 << a.shift) - 1
+    touched = np.zeros(a.slot.shape, bool)
     for c in range(ch.nchunk):
         r0, r1 = a.rows[c], a.rows[c + 1]
-        ranks = np.concatenate([np.arange(r0, r1), pl.nbr[pl.rowptr[r0]:pl.rowptr[r1]]])
-        assert (((ranks - a.lo[c]) % n) < a.width[c]).all(), c
-    # the segments' covers are exactly the windows that contain each rank
-    for s in range(len(a.seg) - 1):
-        for t in (a.seg[s], a.seg[s + 1] - 1):
-            inside = np.flatnonzero(((t - a.lo) % n) < a.width)
-            np.testing.assert_array_equal(a.cover[a.cover_ptr[s]:a.cover_ptr[s + 1]], inside)
+        ranks = np.unique(np.concatenate([np.arange(r0, r1), pl.nbr[pl.rowptr[r0]:pl.rowptr[r1]]]))
+        touched[c, ranks >> a.shift] = True
+        entry = a.slot[c, ranks >> a.shift] + (ranks & mask)
+        assert (a.slot[c, ranks >> a.shift] >= 0).all(), c
+        assert (entry >= a.offset[c]).all() and (entry < a.offset[c + 1]).all(), c
+        assert len(np.unique(entry)) == len(ranks), c
+    np.testing.assert_array_equal(a.slot >= 0, touched)
+    for b in range(a.slot.shape[1]):
+        np.testing.assert_array_equal(a.cover[a.cover_ptr[b]:a.cover_ptr[b + 1]],
+                                      np.flatnonzero(touched[:, b]))
     assert ch.entries < 0.6 * nchunk * n + n
