@@ -218,7 +218,8 @@ class BlockIndex:
         self.periods = np.array(view.periods, dtype=np.float64)
         n = grid.natoms
         if n:
-            g = np.ascontiguousarray(box.fractional(view.positions) * box.heights)
+            g = np.ascontiguousarray(box.fractional(view.positions))
+            g *= box.heights  # in place: one N x 3 temporary, not two
             nslab = int(nb[0])
             bsz = int(np.prod(bs))
             slots = _Slots(*_slots(int(np.prod(nb)) * bsz, int(np.prod(nb))))

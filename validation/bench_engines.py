@@ -254,9 +254,15 @@ def bench_ase(atoms, p):
 
 def memory_mlg(atoms, p):
     """Peak memory of ase-mlg through its first pair-list rebuild: one
-    force call, then ASE's VelocityVerlet until the list was built twice,
+    force call, then ASE's VelocityVerlet (``p["integrator"] == "own"``:
+    ase_mlg.md's, as asap3 runs its own) until the list was built twice,
     then one step more on the rebuilt list."""
-    from ase.md.verlet import VelocityVerlet
+    if p.get("integrator") == "own":
+        VelocityVerlet, why = own_verlet()
+        if VelocityVerlet is None:
+            raise ImportError(why)
+    else:
+        from ase.md.verlet import VelocityVerlet
     atoms.calc = mlg_calc(None)         # ase_mlg, numba and llvmlite imported
     before = maxrss_mb()
     atoms.get_forces()

@@ -513,6 +513,10 @@ def memory_section(a, p, engines, env0):
                                                 "params": q, "scene": {"kind": "fcc",
                                                                        "natoms": n}},
                                                k, a.timeout, env0)
+        # as asap3 runs its own integrator: ase_mlg.md's, at the first count
+        res[("mlg-own", ths[0])] = run_worker(
+            {"task": "memory", "engine": "mlg-exact", "params": dict(q, integrator="own"),
+             "scene": {"kind": "fcc", "natoms": n}}, ths[0], a.timeout, env0)
     steps = [r["steps"] for r in res.values() if ok(r)]
     q["mem_steps"] = max(steps) if steps else 20
     for e, k in (("asap3", 1), ("lammps", ths[0])):
@@ -522,14 +526,16 @@ def memory_section(a, p, engines, env0):
     asap = (res.get(("asap3", 1)) or {}).get("maxrss_mb")
     base = (res.get(("mlg-exact", ths[0])) or {}).get("maxrss_mb")
     rows = []
+    label = dict(LABEL, **{"mlg-own": LABEL["mlg-exact"] + ", ase_mlg.md.VelocityVerlet"})
     for (e, k), r in res.items():
         if not ok(r):
-            rows.append([LABEL[e], k, "error: " + (r or {}).get("error", "?")[:60]])
+            rows.append([label[e], k, "error: " + (r or {}).get("error", "?")[:60]])
             continue
-        rows.append([LABEL[e], r.get("threads", k), layer_cell(e, r), r.get("threads_used"),
+        rows.append([label[e], r.get("threads", k), layer_cell(e.replace("mlg-own", "mlg-exact"), r),
+                     r.get("threads_used"),
                      r.get("before_mb"),
                      r.get("first_mb"), r["maxrss_mb"], ratio(r["maxrss_mb"], asap),
-                     ratio(r["maxrss_mb"], base) if e == "mlg-exact" else None,
+                     ratio(r["maxrss_mb"], base) if e.startswith("mlg") else None,
                      f"{r.get('steps')}" + ("" if r.get("builds") is None else f" ({r['builds']})")])
     table(f"Peak memory, {fcc_argon_size(n):,} atoms, through a list rebuild "
           "(MB, ru_maxrss of the process)",
@@ -537,8 +543,9 @@ def memory_section(a, p, engines, env0):
            "before the first call (imports done)", "after the first build", "peak through a rebuild",
            "/ asap3", f"/ ase-mlg at {ths[0]} threads", "MD steps (list builds)"], rows,
           ["Each in its own process: imports, building the atoms, one force call, then ASE's "
-           "VelocityVerlet until ase-mlg's pair list was built twice, plus one step on the "
-           "rebuilt list; asap3 (its VelocityVerlet) and LAMMPS run as many steps. Thread "
+           "VelocityVerlet (the ase_mlg.md row: ase_mlg.md's) until ase-mlg's pair list was "
+           "built twice, plus one step on the rebuilt list; asap3 (its VelocityVerlet) and "
+           "LAMMPS run as many steps. Thread "
            "counts beyond the cores oversubscribe them: this measures memory, not speed. "
            "Includes the interpreter and imported libraries (numba/llvmlite for ase-mlg)."])
 
