@@ -138,6 +138,19 @@ class PairList:
         return len(self.order)
 
     @property
+    def images(self):
+        """int64[N, 3], rank order (see the class doc).  Once the gather
+        holds them in atom order, the rank-order copy is dropped and
+        remade from that one on request (23 MB at 10^6 atoms)."""
+        if self._images is None and self._by_atom is not None:
+            self._images = np.ascontiguousarray(self._by_atom[1][self.order])
+        return self._images
+
+    @images.setter
+    def images(self, images):
+        self._images = images
+
+    @property
     def list_arrays(self):
         """The list's arrays but the codes as one :data:`ListArrays` (the
         arrays themselves, not copies), as the kernels take them."""
@@ -170,6 +183,7 @@ class PairList:
             images = np.empty((n, 3), np.int64)
             images[self.order] = self.images
             self._by_atom = (rank, images)
+            self._images = None  # remade from these where asked for
         rank, images = self._by_atom
         if use_threads("atoms", n):
             worst = np.empty(4 * threads_for("atoms", n))

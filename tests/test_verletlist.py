@@ -207,3 +207,17 @@ def test_radii_lists_update_and_refuse_a_skin():
     assert vl.update(moved, cell, [True] * 3)  # nothing moved: still rebuilt (no skin)
     with pytest.raises(ValueError, match="skin"):
         VerletList(radii, skin=0.5)
+
+
+def test_images_in_rank_order_remade_after_the_gather():
+    # the gather keeps each atom's image in atom order; the rank-order copy
+    # goes (23 MB at 10^6 atoms) and comes back equal where asked for
+    pos, cell = _liquid(5000, 35.0, 6)
+    vl = VerletList(RC, skin=SKIN)
+    pl = vl.build(pos, cell, [True] * 3)
+    before = pl.images.copy()
+    X = pl.positions(pos, cell)  # the gather
+    assert pl._images is None
+    np.testing.assert_array_equal(pl.images, before)
+    assert pl.images.flags.c_contiguous
+    np.testing.assert_array_equal(pl.positions(pos, cell), X)
