@@ -137,12 +137,12 @@ def _chunks(rowptr, nbr, nchunk):
     counts = marks.sum(axis=1, dtype=np.int64)
     offset = np.zeros(nchunk + 1, np.int64)
     np.cumsum(counts << shift, out=offset[1:])
+    touched = marks.astype(bool)
     within = (np.cumsum(marks, axis=1, dtype=np.int64) - 1) << shift
-    slot = np.where(marks.astype(bool), within + offset[:-1, None], -1)
-    covered = marks.T.astype(bool)
+    slot = np.where(touched, within + offset[:-1, None], -1)
     cover_ptr = np.zeros(nbin + 1, np.int64)
-    np.cumsum(covered.sum(axis=1), out=cover_ptr[1:])
-    cover = np.nonzero(covered)[1].astype(np.int64)  # row-major: chunk order
+    np.cumsum(touched.sum(axis=0), out=cover_ptr[1:])
+    cover = np.nonzero(touched.T)[1].astype(np.int64)  # row-major: chunk order
     return Chunks(rows, np.ascontiguousarray(slot), shift, offset, cover_ptr, cover,
                   np.zeros(nchunk, np.int64))
 
