@@ -169,15 +169,16 @@ class PairList:
         (``x[order] + images @ cell``): the ``X`` of the pair kernel, Å."""
         return self.gather_check(positions, cell)[0]
 
-    def gather_check(self, positions, cell, ref=None, M=None):
+    def gather_check(self, positions, cell, ref=None, M=None, out=None):
         """``(X, umax)``: :meth:`positions`, and in the same pass the
         largest displacement beyond the affine cell map ``M`` (None: the
         cell has not changed) since ``ref`` (the positions in atom order
         when the list was built), Å; NaN if any position is NaN; 0 without
         ``ref``.  The gather and the list-validity test share one pass over
-        the positions (a force call makes others: docs/design.md §6)."""
+        the positions (a force call makes others: docs/design.md §6).
+        ``out``: an (N, 3) float64 C array to write ``X`` into (returned)."""
         n = len(self.order)
-        X = np.empty((n, 3))
+        X = out if out is not None and out.shape == (n, 3) else np.empty((n, 3))
         cell = np.ascontiguousarray(cell, dtype=np.float64)
         if ref is None:
             ref = _NO_REF
