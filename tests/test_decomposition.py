@@ -267,3 +267,35 @@ def test_bad_rank_counts_are_refused():
         mlg_decomposition(grid, 4, reach=REACH, dims=(2, 1, 1))
     with pytest.raises(ValueError, match="weight"):
         mlg_decomposition(grid, 2, reach=REACH, weight="mass")
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(0, 40), self_rank=st.booleans())
+def test_a_ranks_ghost_images_are_every_image_in_its_box(seed, n, self_rank):
+    """The halo's send list (ranks.halo._face_images) against every image
+    in [-3, 3]^3 tested one by one: the atoms whose wrapped fractional
+    coordinate plus the image falls in the widened box of a rank, sorted
+    by atom then image, each image relative to the atom's own position."""
+    from ase_mlg.ranks.halo import _face_images, _own_images
+    rng = np.random.default_rng(seed)
+    frac = rng.normal(scale=1.2, size=(n, 3))
+    frac[: n // 4] = rng.choice([0.0, -1e-17, 1.0, 0.9999999999999999], size=(n // 4, 3))
+    pbc, cut = rng.random(3) < 0.6, rng.random(3) < 0.6
+    low = rng.uniform(-0.3, 0.6, 3)
+    high = low + rng.uniform(0.05, 1.2, 3)
+    low[~pbc & (rng.random(3) < 0.3)] = -np.inf
+    own = _own_images(frac, pbc)
+    idx, img = _face_images(frac, own, pbc, low, high, cut, self_rank)
+    want = []
+    for a in range(n):
+        w = np.where(pbc, frac[a] + own[a], frac[a])
+        w = np.where(pbc & (w >= 1.0), 0.0, w)
+        for m in np.ndindex(7, 7, 7):
+            m = np.array(m) - 3
+            if (m[~(pbc & cut)] != 0).any() or (self_rank and not m.any()):
+                continue
+            if all(low[k] <= w[k] + m[k] <= high[k] for k in range(3) if cut[k]):
+                want.append((a, *(m + own[a])))
+    got = [(int(i), *map(int, g)) for i, g in zip(idx, img)]
+    assert got == want
+    assert np.array_equal(own, -np.where(pbc, np.floor(frac), 0).astype(np.int64))
