@@ -248,12 +248,14 @@ class RankEngine:
         self.timings["kernel"] += t1 - t0
         n, halo = len(atoms), self.halo
         out = {"energy": float(ordered_sum(comm, res["energy"]))}
-        # the ghosts' shares go home: forces (and per-atom values) of owned atoms
+        # the ghosts' shares go home: forces (and per-atom values) of owned
+        # atoms, added into the owned rows of the kernel's own new array
+        # (a view; a copy was 12 MB a step on a rank of 10^6 atoms)
         for key, name in (("forces", "forces"), ("energies", "energies"),
                           ("virials_voigt", "virials_voigt")):
             if key in res:
-                mine = np.array(res[key][:n], copy=True)
-                halo.add_back(np.ascontiguousarray(res[key][n:]), mine)
+                mine = res[key][:n]
+                halo.add_back(res[key][n:], mine)
                 out[name] = mine
         if "virial" in res:
             out["virial"] = ordered_sum(comm, res["virial"])
