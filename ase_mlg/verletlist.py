@@ -292,9 +292,8 @@ class VerletList:
         else:
             M = np.ascontiguousarray(np.linalg.solve(ref_cell, cell))
         # into the last step's X, in place: a new one each step was 23 MB
-        # of allocation a step at 10^6 atoms, whose reuse from the heap
-        # fragmented it (RSS crept by ~60 MB between rebuilds on a rank).
-        # When the list fails the test it is rebuilt, with a new X
+        # allocated and faulted in a step at 10^6 atoms.  When the list
+        # fails the test it is rebuilt, with a new X
         X, umax = self.pairs.gather_check(positions, cell, self._ref, M, out=self.X)
         if fixed:
             kept = umax < 0.5 * self.skin

@@ -233,7 +233,7 @@ def _face_images(frac, own, pbc, low, high, cut, self_rank):
             for ax in range(3):
                 w = frac[a, ax]
                 if pbc[ax]:
-                    w = w - np.floor(w)
+                    w = w + own[a, ax]  # frac - floor(frac), the floor taken once
                     if w >= 1.0:
                         w = 0.0
                 lo[ax] = 0
