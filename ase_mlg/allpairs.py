@@ -67,7 +67,7 @@ errors the package always raised.
 import math
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .geometry import Box, as_pbc
 from .pairlist import PairOutput, ase_vector, put_pair

@@ -10,7 +10,7 @@ bisect them (the proof is in :mod:`ase_mlg.query` and docs/design.md §6).
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .parallel import run_chunks, threads_for
 

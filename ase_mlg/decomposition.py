@@ -47,7 +47,7 @@ with ``d < reach`` once, its row atom the one of lower grid rank):
 import time
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .blocks import BlockIndex, block_for_radius
 from .query import half_list

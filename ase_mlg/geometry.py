@@ -16,6 +16,8 @@ arrays, so the grid can be used from any code.
 import numba
 import numpy as np
 
+from .jit import njit
+
 __all__ = ["Box", "as_pbc", "as_positions", "cell_change", "grid_shape", "same", "stored_atoms"]
 
 
@@ -90,7 +92,7 @@ def same(a, b):
     return bool(np.array_equal(a, b))
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True)
 def _same_words(a, b):
     # blocks without a branch (LLVM vectorises them), a test after each
     n = a.shape[0]

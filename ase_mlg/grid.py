@@ -31,7 +31,7 @@ Maintenance (swap sweeps, the follow, the periodic seam) is in
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .geometry import Box, as_positions, cell_change, grid_shape, wrap_origins
 from .parallel import run_chunks, threads_for, use_threads

@@ -9,13 +9,13 @@ energies and forces agree with ASE to rounding.  Units: Å, eV.
 
 import math
 
-import numba
+from .jit import njit
 
 __all__ = ["lennard_jones_shifted_r2", "lennard_jones_smooth_r2",
            "lennard_jones_shifted", "lennard_jones_smooth", "morse"]
 
 
-@numba.njit(cache=True, inline='always', error_model='numpy')
+@njit(cache=True, inline='always', error_model='numpy')
 def _lj(r2, sigma, epsilon):
     # Same operation order as ase.calculators.lj, so results agree to rounding.
     c6 = (sigma * sigma / r2) ** 3
@@ -23,7 +23,7 @@ def _lj(r2, sigma, epsilon):
     return 4.0 * epsilon * (c12 - c6), -24.0 * epsilon * (2.0 * c12 - c6) / r2
 
 
-@numba.njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def lennard_jones_shifted_r2(r2, p):
     """Lennard-Jones shifted to zero at the cutoff (ASE ``smooth=False``),
     squared form (``squared=True`` in
@@ -38,7 +38,7 @@ def lennard_jones_shifted_r2(r2, p):
     return e - p[2], du
 
 
-@numba.njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def lennard_jones_smooth_r2(r2, p):
     """Lennard-Jones times ASE's C^1 cutoff function between ro and rc,
     squared form: ``r**2`` (Å²) -> ``(e, dE/dr / r)``.
@@ -59,7 +59,7 @@ def lennard_jones_smooth_r2(r2, p):
     return fc * e, fc * du + 2.0 * dfc * e
 
 
-@numba.njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def lennard_jones_shifted(r, p):
     """:func:`lennard_jones_shifted_r2` as a function of ``r``:
     ``(e, dE/dr)``."""
@@ -67,7 +67,7 @@ def lennard_jones_shifted(r, p):
     return e, du * r
 
 
-@numba.njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def lennard_jones_smooth(r, p):
     """:func:`lennard_jones_smooth_r2` as a function of ``r``:
     ``(e, dE/dr)``."""
@@ -75,7 +75,7 @@ def lennard_jones_smooth(r, p):
     return e, du * r
 
 
-@numba.njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def morse(r, p):
     """Morse potential with ASE's quintic cutoff between rcut1 and rcut2.
 

@@ -16,12 +16,13 @@ from collections import namedtuple
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import prange
 from numba.core import types
 from numba.core.imputils import impl_ret_borrowed
 from numba.extending import intrinsic
 from numba.np.arrayobj import make_array, populate_array
 
+from .jit import njit
 from .parallel import (dynamic_schedule, run_chunks, serial_and_parallel, threads_for,
                        use_threads)
 

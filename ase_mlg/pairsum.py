@@ -44,6 +44,7 @@ import numba
 import numpy as np
 from numba import prange
 
+from .jit import njit
 from .pairfunctions import lennard_jones_shifted_r2, lennard_jones_smooth_r2, morse
 from .pairlist import flat, pair_vector
 from .parallel import serial_and_parallel, use_threads
@@ -429,7 +430,7 @@ def _kernel(name, pair, squared, general, cache):
 _GENERIC = {}
 
 
-@numba.njit(cache=True, error_model='numpy')
+@njit(cache=True, error_model='numpy')
 def first_bad_pair(pair, lst, code, pot):
     """The first pair of the list that a kernel of :func:`pair_kernel`
     flagged (the error path only: a serial scan).

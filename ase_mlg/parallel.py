@@ -110,6 +110,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numba  # noqa: E402
 from numba import prange  # noqa: E402
 
+from .jit import njit  # noqa: E402
+
 __all__ = ["THRESHOLDS", "LAYER", "SERIALISED", "ThreadingLayerWarning",
            "config", "show_config", "dynamic_schedule", "use_threads", "threads_for", "serial_and_parallel",
            "run_chunks", "reduction_chunks"]
@@ -332,8 +334,8 @@ def serial_and_parallel(func, cache=True, **flags):
     twin.__qualname__ = func.__qualname__ + "_threaded"
     twin.__module__ = func.__module__
     twin.__doc__ = func.__doc__
-    threaded = numba.njit(cache=cache, parallel=True, **flags)(twin)
-    return (numba.njit(cache=cache, **flags)(func),
+    threaded = njit(cache=cache, parallel=True, **flags)(twin)
+    return (njit(cache=cache, **flags)(func),
             _Serialised(threaded) if SERIALISED else threaded)
 
 
@@ -395,7 +397,7 @@ class dynamic_schedule:
 
 
 # -- what runs -------------------------------------------------------------------
-@numba.njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True)
 def _thread_probe(ids, spin):
     # each iteration records the numba thread that ran it; the spin keeps
     # every thread busy long enough for the pool's workers to take a share

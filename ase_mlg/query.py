@@ -73,7 +73,7 @@ that the output too is the same for any number of threads.
 from collections import namedtuple
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from .blocks import BlockIndex
 from .pairlist import PairList, ase_vector, shift_codes

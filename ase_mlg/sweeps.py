@@ -25,8 +25,9 @@ measures sweeps per step and template quality over long periodic runs.
 """
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
+from .jit import njit
 from .parallel import serial_and_parallel, use_threads
 
 __all__ = ["sweep", "is_monotone", "take_positions", "follow"]

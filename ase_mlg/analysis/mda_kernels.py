@@ -16,12 +16,13 @@ import math
 from collections import namedtuple
 
 import numpy as np
-from numba import njit, prange
+from numba import prange
 
 from MDAnalysis.lib import c_distances as _mda_c
 from MDAnalysis.lib import distances as _mda_distances
 from MDAnalysis.lib.mdamath import triclinic_vectors
 
+from ..jit import njit
 from ..parallel import serial_and_parallel, use_threads
 from .pairs import chunk_bounds, chunk_totals
 

@@ -2,7 +2,7 @@
 (docs/design.md §10), and how the count kernels split its pairs."""
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 from ..parallel import reduction_chunks
 from ..verletlist import VerletList

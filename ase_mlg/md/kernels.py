@@ -24,7 +24,7 @@ from collections import namedtuple
 
 import numba
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 from ..pairlist import flat
 

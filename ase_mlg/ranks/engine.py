@@ -30,7 +30,7 @@ makes new ghost lists.
 import time
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 from ..geometry import same
 from ..verletlist import VerletList

@@ -23,7 +23,7 @@ Migration (:func:`migrate`)
 """
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 __all__ = ["Halo", "migrate", "check_atoms", "shifted"]
 
