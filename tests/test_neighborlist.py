@@ -225,11 +225,11 @@ def test_threaded_build_and_short_guess_give_one_list(guess):
     new room) or long."""
     import numba
 
-    from ase_mlg.parallel import use_threads
+    from ase_mlg.parallel import THRESHOLDS
     from ase_mlg.query import CUT_SCALAR, half_list
     rng = np.random.default_rng(5)
     n = 6000
-    assert use_threads("atoms", n)
+    assert n >= THRESHOLDS["atoms"]
     L = (n / 0.02) ** (1 / 3)
     atoms = ase.Atoms(f"Ar{n}", positions=rng.random((n, 3)) * L,
                       cell=[L, L * 1.1, L * 0.9], pbc=True)

@@ -156,3 +156,23 @@ def test_rdf_kernels_from_two_threads_under_workqueue():
                          text=True, timeout=300, env=env)
     assert res.returncode == 0, (res.returncode, res.stderr[-2000:])
     assert "LAYER workqueue SERIALISED True" in res.stdout, res.stdout
+
+
+def test_one_numba_thread_takes_the_serial_kernels():
+    """At one numba thread no threaded twin runs, however large the work
+    (its launch would cost time for no parallelism); at two it does."""
+    import numba
+
+    from ase_mlg.parallel import THRESHOLDS, threads_for, use_threads
+    old = numba.get_num_threads()
+    big = 10 * max(THRESHOLDS.values())
+    try:
+        numba.set_num_threads(1)
+        assert not any(use_threads(kind, big) for kind in THRESHOLDS)
+        assert threads_for("pairs", big) == 1
+        if numba.config.NUMBA_NUM_THREADS > 1:
+            numba.set_num_threads(2)
+            assert all(use_threads(kind, big) for kind in THRESHOLDS)
+            assert not use_threads("pairs", THRESHOLDS["pairs"] - 1)
+    finally:
+        numba.set_num_threads(old)
