@@ -45,6 +45,7 @@ if FunctionCache is not None:
             with self._guard_against_spurious_io_errors():
                 return self._load_overload(sig, target_context)
 
+
 _WARNED = []
 
 

@@ -280,8 +280,8 @@ def use_threads(kind, size):
     :data:`THRESHOLDS`) runs on threads.
 
     Never at one numba thread: a threaded twin launched on one thread
-    still pays the layer's launch (a list's gather at 10,976 atoms 70 us
-    against its serial twin's 48 us, AMD EPYC Zen 3).  The twins give the
+    still pays the layer's launch (a list's gather at 10,976 atoms 70 µs
+    against its serial twin's 48 µs, AMD EPYC Zen 3).  The twins give the
     same bits, so the choice changes only the time."""
     return size >= THRESHOLDS[kind] and numba.get_num_threads() > 1
 
