@@ -9,7 +9,7 @@ from .kernels import (LangevinCoefficients, NoiseCorrection, indexed_normals, la
                       langevin_kick, langevin_noise, no_fixed)
 from .checks import check_dynamics_args, check_langevin_args
 from .fastpath import (CompiledRefresh, as_float_array, compiled_reason, fixed_mask, forces_now,
-                       masses_now, rank_trajectory)
+                       rank_trajectory)
 
 __all__ = ["Langevin"]
 
@@ -140,11 +140,11 @@ class Langevin(CompiledRefresh, _ASELangevin):
         self._fresh = False
         if coef is None:
             self.path = "ase: " + (reason or "per-atom friction or temperature")
+            self._untouched = None
             return super().step(forces)
         self.path = "compiled"
         c1, c2, c3, c4, c5, m = coef
-        f = forces_now(atoms) if forces is None else as_float_array(forces, n)
-        m_now = masses_now(atoms)
+        f, m_now, in_step = self._start(atoms, forces)
         xi, eta = self._draw(atoms, n)
         v, rnd_pos, rnd_vel = self._buffers(n)
         langevin_noise(xi, eta, c3, c4, c5, rnd_pos, rnd_vel)
@@ -178,9 +178,9 @@ class Langevin(CompiledRefresh, _ASELangevin):
             p, m = atoms.arrays["momenta"], np.ascontiguousarray(atoms.get_masses())
             fixed = no_fixed(len(p))
         else:
-            f = forces_now(atoms)
+            f = forces_now(atoms, moved=in_step)
         langevin_kick(v, p, f, m, rnd_vel, c1, c2, fixed)
-        self._fresh = True
+        self._end(atoms, m_now)
         ro = f.view()
         ro.flags.writeable = False
         return ro

@@ -4,8 +4,7 @@ from ase.md.verlet import VelocityVerlet as _ASEVelocityVerlet
 
 from .kernels import no_fixed, verlet_drift, verlet_drift_rattle, verlet_kick
 from .checks import check_dynamics_args
-from .fastpath import (CompiledRefresh, as_float_array, compiled_reason, fixed_mask, forces_now,
-                       masses_now, rank_trajectory)
+from .fastpath import CompiledRefresh, compiled_reason, fixed_mask, forces_now, rank_trajectory
 
 __all__ = ["VelocityVerlet"]
 
@@ -69,12 +68,11 @@ class VelocityVerlet(CompiledRefresh, _ASEVelocityVerlet):
         reason = compiled_reason(atoms)
         self._fresh = False
         if reason is not None:
-            self.path = "ase: " + reason
+            self.path, self._untouched = "ase: " + reason, None
             return super().step(forces)
         self.path = "compiled"
         n = len(atoms)
-        f = forces_now(atoms) if forces is None else as_float_array(forces, n)
-        m = masses_now(atoms)
+        f, m, in_step = self._start(atoms, forces)
         x = atoms.arrays["positions"]
         p = atoms.arrays["momenta"]
         dt = float(self.dt)
@@ -88,9 +86,9 @@ class VelocityVerlet(CompiledRefresh, _ASEVelocityVerlet):
         # arrays were written in place, as ASE's set_array does); momenta
         # are stored before the force call, as ASE does for Asap.  Read
         # them again after it: a distributed system migrates atoms there
-        f = forces_now(atoms)
+        f = forces_now(atoms, moved=in_step)
         p = atoms.arrays["momenta"]
         verlet_kick(p, f, dt, fixed if len(fixed) == len(p) else no_fixed(len(p)))
-        self._fresh = True
+        self._end(atoms, m)
         return _readonly(f)
 
