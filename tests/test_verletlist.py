@@ -126,6 +126,21 @@ def test_other_system_rebuilds(change):
     assert vl.version == 1
 
 
+def test_numbers_same_is_trusted_not_compared():
+    """``numbers_same=True`` (an MD step's check found no new numbers) keeps
+    the list without comparing them: other numbers given with it do not
+    rebuild it, and the next update that compares them does."""
+    pos, cell = _liquid(40, 8.0, 5)
+    numbers = np.full(40, 18)
+    vl = VerletList.allocate(pos, cell, [True] * 3, RC, numbers=numbers, skin=SKIN,
+                             types=lambda z: (z == 36).astype(np.int32))
+    other = numbers.copy()
+    other[3] = 36
+    assert vl.update(pos, cell, [True] * 3, other, numbers_same=True) is False
+    assert vl.update(pos, cell, [True] * 3, other) is True
+    assert vl.types[np.flatnonzero(vl.pairs.order == 3)[0]] == 1
+
+
 def test_skin_zero_rebuilds_every_update_and_closed_keeps_the_cutoff():
     # two atoms exactly rc apart: ASE's potentials keep d == rc
     pos = np.array([[0.0, 0.0, 0.0], [RC, 0.0, 0.0]])
