@@ -108,6 +108,12 @@ def _md_system():
     return atoms
 
 
+def _nudge(atoms):
+    """Move original atoms 3, 100 and 500 by 0.005 Å along x, in place."""
+    ids = atoms.indices if hasattr(atoms, "indices") else np.arange(len(atoms))
+    atoms.positions[np.isin(ids, [3, 100, 500]), 0] += 0.005
+
+
 def md_runs(make, nsteps=150, logfile=None, trajectory=None):
     """For NVE then Langevin, each on ``make()`` (plain or distributed
     atoms): (energy trace, final positions in original order, migrations).
@@ -132,6 +138,11 @@ def md_runs(make, nsteps=150, logfile=None, trajectory=None):
         trace = []
         dyn.attach(lambda: trace.append(a.get_potential_energy() + a.get_kinetic_energy()),
                    interval=10)
+        # an observer that edits the atoms (the next step must see it), and
+        # one attached on rank 0 only (the ranks must still agree every step)
+        dyn.attach(_nudge, 7, a)
+        if not is_distributed(a) or a.comm.rank == 0:
+            dyn.attach(lambda: None, interval=3)
         dyn.run(nsteps)
         whole = a.gather() if is_distributed(a) else a
         out.append((np.array(trace), whole.positions.copy(),

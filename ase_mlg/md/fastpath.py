@@ -33,7 +33,7 @@ from ase.data import atomic_masses
 from ase.md.md import MolecularDynamics
 
 from ..calculator import MLGCalculator
-from ..ranks import Trajectory, is_distributed
+from ..ranks import RankEngine, Trajectory, is_distributed
 
 __all__ = ["compiled_reason", "masses_now", "fixed_mask", "forces_now",
            "as_float_array", "is_mlg"]
@@ -148,7 +148,7 @@ def is_mlg(atoms):
     return type(atoms.calc) is MLGCalculator
 
 
-def forces_now(atoms, moved=False):
+def forces_now(atoms, known=None):
     """The forces of ASE's ``atoms.get_forces(md=True)`` for the compiled step.
 
     With FixAtoms only, ``get_forces(md=True)`` applies no constraint (ASE
@@ -164,12 +164,14 @@ def forces_now(atoms, moved=False):
     Parameters
     ----------
     atoms : ase.Atoms
-    moved : bool
-        The caller knows that only the positions changed since the
-        calculator's last call (it wrote them itself, with the calculator
-        in step with the atoms before): ``check_state``, which compares
-        every atom's number too, is skipped.  Not on a distributed system,
-        whose check is collective.
+    known : list of str, optional
+        What the caller knows changed since the calculator's last call
+        (``[]``: nothing; ``["positions"]``: the positions it wrote itself,
+        the calculator in step with the atoms before): ``check_state``'s
+        comparison of every atom's position and number is skipped.  On a
+        distributed system the ranks still take the union of what each saw
+        (one small reduction, as ``check_state`` does), so every rank makes
+        the same collective calls whatever each one knew.
 
     Returns
     -------
@@ -179,7 +181,12 @@ def forces_now(atoms, moved=False):
     calc = atoms.calc
     if not is_mlg(atoms):
         return as_float_array(atoms.get_forces(md=True), len(atoms))
-    changes = ["positions"] if moved and calc.atoms is not None else calc.check_state(atoms)
+    if known is None or calc.atoms is None:
+        changes = calc.check_state(atoms)
+    elif is_distributed(atoms):
+        changes = RankEngine.union(atoms.comm, known)
+    else:
+        changes = known
     if changes:
         # the stored atoms stay: calculate() updates their positions in
         # place instead of copying the whole Atoms object every step
@@ -208,17 +215,18 @@ class CompiledRefresh:
     between two steps: no user code (``irun`` yields to it, ``run`` does
     not).  After a compiled step with an :class:`~ase_mlg.MLGCalculator`,
     and until an observer is due, the atoms are therefore as the step left
-    them, and the next step takes that step's forces and masses as they
-    are: ASE's check of the state at a step's start (every position and
-    atomic number compared with the calculator's copy; 0.11 ms a step at
-    10,976 atoms on AMD Zen 3 once the pair sum has pushed them out of the
-    cache) and the masses' lookup are skipped.  An observer due at a step
-    (ASE's rule: ``interval > 0`` and ``nsteps % interval == 0``; any
-    ``interval <= 0`` is taken as due) may edit the atoms, so the step
-    after it checks them as ASE does.  Not on a distributed system (the
-    check there is collective, and an observer on one rank only would
-    leave the ranks out of step).  Another Python thread editing the atoms
-    during ``run`` is a race, in ASE as here.
+    them, and the next step takes that step's forces (and, on one process,
+    masses) as they are: ASE's check of the state at a step's start (every
+    position and atomic number compared with the calculator's copy; 0.11
+    ms a step at 10,976 atoms on AMD Zen 3 once the pair sum has pushed
+    them out of the cache) and the masses' lookup are skipped.  An
+    observer due at a step (ASE's rule: ``interval > 0`` and ``nsteps %
+    interval == 0``; any ``interval <= 0`` is taken as due) may edit the
+    atoms, so the step after it checks them as ASE does.  On a distributed
+    system the ranks still agree on what changed (:func:`forces_now`'s
+    ``known``): an observer attached on one rank only checks there and
+    the others follow.  Another Python thread editing the atoms during
+    ``run`` is a race, in ASE as here.
     """
 
     _fresh = False
@@ -238,24 +246,28 @@ class CompiledRefresh:
         super().call_observers()
 
     def _start(self, atoms, forces):
-        """Forces (eV/Å) and masses (amu) at a step's start, and whether the
-        calculator is then in step with the atoms (an MLGCalculator, not
-        distributed: the step's force call after the drift may skip the
-        check, :func:`forces_now`'s ``moved``)."""
+        """Forces (eV/Å) and masses (amu) at a step's start, and what the
+        step's force call after the drift may pass as :func:`forces_now`'s
+        ``known`` (None: nothing; the calculator not an MLGCalculator or
+        not in step with the atoms)."""
         kept, self._untouched = self._untouched, None
         n = len(atoms)
         if forces is not None:
-            return as_float_array(forces, n), masses_now(atoms), False
-        if kept is not None and atoms.calc is kept[0] and "forces" in kept[0].results:
-            return as_float_array(kept[0].results["forces"], n), kept[1], True
-        return forces_now(atoms), masses_now(atoms), is_mlg(atoms) and not is_distributed(atoms)
+            return as_float_array(forces, n), masses_now(atoms), None
+        if not is_mlg(atoms):
+            return forces_now(atoms), masses_now(atoms), None
+        if kept is None or atoms.calc is not kept[0]:
+            return forces_now(atoms), masses_now(atoms), ["positions"]
+        # migration may have changed a rank's atoms in the last force call
+        m = masses_now(atoms) if kept[1] is None else kept[1]
+        return forces_now(atoms, known=[]), m, ["positions"]
 
     def _end(self, atoms, masses):
         """A compiled step ended: its results are fresh; inside run() its
         forces and masses hold until anything else may run."""
         self._fresh = True
-        if self._sealed and is_mlg(atoms) and not is_distributed(atoms):
-            self._untouched = (atoms.calc, masses)
+        if self._sealed and is_mlg(atoms):
+            self._untouched = (atoms.calc, None if is_distributed(atoms) else masses)
 
     def _refresh_properties(self):
         if self._fresh and self.nsteps > 0:

@@ -144,7 +144,7 @@ class Langevin(CompiledRefresh, _ASELangevin):
             return super().step(forces)
         self.path = "compiled"
         c1, c2, c3, c4, c5, m = coef
-        f, m_now, in_step = self._start(atoms, forces)
+        f, m_now, known = self._start(atoms, forces)
         xi, eta = self._draw(atoms, n)
         v, rnd_pos, rnd_vel = self._buffers(n)
         langevin_noise(xi, eta, c3, c4, c5, rnd_pos, rnd_vel)
@@ -172,13 +172,13 @@ class Langevin(CompiledRefresh, _ASELangevin):
         if distributed:
             # atoms may migrate in the force call: the half step's state goes with them
             atoms.arrays["mlg_langevin_v"], atoms.arrays["mlg_langevin_rnd_vel"] = v, rnd_vel
-            f = forces_now(atoms)
+            f = forces_now(atoms, known=known)
             v = self.v = atoms.arrays.pop("mlg_langevin_v")
             rnd_vel = self.rnd_vel = atoms.arrays.pop("mlg_langevin_rnd_vel")
             p, m = atoms.arrays["momenta"], np.ascontiguousarray(atoms.get_masses())
             fixed = no_fixed(len(p))
         else:
-            f = forces_now(atoms, moved=in_step)
+            f = forces_now(atoms, known=known)
         langevin_kick(v, p, f, m, rnd_vel, c1, c2, fixed)
         self._end(atoms, m_now)
         ro = f.view()

@@ -72,7 +72,7 @@ class VelocityVerlet(CompiledRefresh, _ASEVelocityVerlet):
             return super().step(forces)
         self.path = "compiled"
         n = len(atoms)
-        f, m, in_step = self._start(atoms, forces)
+        f, m, known = self._start(atoms, forces)
         x = atoms.arrays["positions"]
         p = atoms.arrays["momenta"]
         dt = float(self.dt)
@@ -86,7 +86,7 @@ class VelocityVerlet(CompiledRefresh, _ASEVelocityVerlet):
         # arrays were written in place, as ASE's set_array does); momenta
         # are stored before the force call, as ASE does for Asap.  Read
         # them again after it: a distributed system migrates atoms there
-        f = forces_now(atoms, moved=in_step)
+        f = forces_now(atoms, known=known)
         p = atoms.arrays["momenta"]
         verlet_kick(p, f, dt, fixed if len(fixed) == len(p) else no_fixed(len(p)))
         self._end(atoms, m)
