@@ -151,6 +151,13 @@ class RankEngine:
         halo.exchange(atoms.arrays["positions"], cell, out=buf[n:])
         return buf
 
+    def _kept(self, atoms, local, finite_unchecked):
+        """The local list's positions if the list holds (VerletList.kept),
+        the positions first tested for NaN and inf if ``finite_unchecked``."""
+        if finite_unchecked:
+            _finite(atoms)
+        return self.vl.kept(local, atoms.cell.array, self.halo.pbc)
+
     def _rebuild(self, atoms):
         """New partition, migration, ghosts; returns the local positions."""
         comm = atoms.comm
@@ -216,23 +223,33 @@ class RankEngine:
         self._degree = by_atom[:len(atoms)]
         self.timings["list"] += time.perf_counter() - t0
 
-    def calculate(self, atoms, energies=False, virials=False, virial=False):
+    def calculate(self, atoms, changes=None, energies=False, virials=False, virial=False):
         """Results of ``atoms`` (a ParallelAtoms) on this rank: ``energy``
         and ``virial`` (eV) global, ``forces``, ``energies``,
-        ``virials_voigt`` of the owned atoms.  Collective."""
+        ``virials_voigt`` of the owned atoms.  Collective.
+
+        ``changes``: what the ranks agreed changed since the last call (the
+        union of ``check_state``'s, as the calculator passes it; None: not
+        known).  Where it is the positions at most, no rank's numbers, pbc
+        or atom count changed, so the ranks skip their vote on a rebuild
+        before the halo exchange, and test the positions for NaN and inf
+        within the list's test: one reduction a step fewer, and no
+        comparison of every atom's number."""
         comm = atoms.comm
-        # new numbers on any rank (its ghosts' too) are a rebuild on every
-        # rank: the list's own test need not compare the local numbers
-        changed = (self.halo is None or self._key is None
-                   or not same(self._key[0], atoms.numbers)
-                   or not same(self._key[1], atoms.pbc))
-        _, rebuild = agree(comm, _finite, atoms, vote=lambda _: changed)
+        known = self.halo is not None and changes is not None and set(changes) <= {"positions"}
+        rebuild = False
+        if not known:
+            # new numbers on any rank (its ghosts' too) are a rebuild on every
+            # rank: the list's own test need not compare the local numbers
+            changed = (self.halo is None or self._key is None
+                       or not same(self._key[0], atoms.numbers)
+                       or not same(self._key[1], atoms.pbc))
+            _, rebuild = agree(comm, _finite, atoms, vote=lambda _: changed)
         if not rebuild:
             t0 = time.perf_counter()
             local = self._local(atoms)
             t1 = time.perf_counter()
-            X, rebuild = agree(comm, self.vl.kept, local, atoms.cell.array, self.halo.pbc,
-                               vote=lambda x: x is None)
+            X, rebuild = agree(comm, self._kept, atoms, local, known, vote=lambda x: x is None)
             self.timings["halo"] += t1 - t0
             self.timings["check"] += time.perf_counter() - t1
         if rebuild:
