@@ -152,7 +152,7 @@ class MLGCalculator(Calculator):
             self._ranks = self._ranks or RankEngine(self.potential, self.skin, self.grid_kwargs,
                                                     "auto" if self.auto else self._width)
             res = self._ranks.calculate(atoms, system_changes, **want)
-            self.atoms = self._stored = stored_atoms(self._stored, atoms)  # no copy a call
+            self.atoms = self._stored = stored_atoms(self._stored, atoms, res["moved_only"])
         else:
             res = self._calculate_here(atoms, want, system_changes)
         self.results.update(energy=res["energy"], free_energy=res["energy"],

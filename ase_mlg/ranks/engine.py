@@ -226,7 +226,9 @@ class RankEngine:
     def calculate(self, atoms, changes=None, energies=False, virials=False, virial=False):
         """Results of ``atoms`` (a ParallelAtoms) on this rank: ``energy``
         and ``virial`` (eV) global, ``forces``, ``energies``,
-        ``virials_voigt`` of the owned atoms.  Collective.
+        ``virials_voigt`` of the owned atoms, and ``moved_only`` (bool:
+        the owned atoms are those of the last call, only their positions
+        changed: no rebuild migrated any).  Collective.
 
         ``changes``: what the ranks agreed changed since the last call (the
         union of ``check_state``'s, as the calculator passes it; None: not
@@ -264,7 +266,8 @@ class RankEngine:
         t1 = time.perf_counter()
         self.timings["kernel"] += t1 - t0
         n, halo = len(atoms), self.halo
-        out = {"energy": float(ordered_sum(comm, res["energy"]))}
+        out = {"energy": float(ordered_sum(comm, res["energy"])),
+               "moved_only": bool(known and not rebuild)}
         # the ghosts' shares go home: forces (and per-atom values) of owned
         # atoms, added into the owned rows of the kernel's own new array
         # (a view; a copy was 12 MB a step on a rank of 10^6 atoms)
