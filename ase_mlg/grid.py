@@ -42,6 +42,11 @@ __all__ = ["MLG", "GridView"]
 KD, SORT = 0, 1
 _METHODS = {"kd": KD, "sort": SORT}
 
+# MLG.renumber places a newcomer only within this many site spacings of its
+# hole: the sweeps move an atom about a site a sweep, and a newcomer far off
+# would run them into their cap and a rebuild after all
+NEWCOMER_REACH = 3.0
+
 
 # --------------------------------------------------------------------------
 # construction
@@ -583,6 +588,92 @@ class MLG:
         st["swaps"] += rec["swaps"]
         st["last"] = rec
         return rec
+
+    def renumber(self, new_of_old, positions, cell=None, pbc=None):
+        """Carry the grid over to another set of atoms that shares most of
+        its atoms with this one (a rank's local system after migration and
+        new ghosts, docs/design.md §11), then :meth:`update` it there.
+
+        The atoms kept take their new numbers in their sites; the sites of
+        the atoms gone become holes; each newcomer takes a hole near it in
+        grid space (a hole's stored coordinate is where its last atom was),
+        and the update's follow and sweeps restore the order (Boris 1985
+        §III).  A new grid for a rank of 5.8e5 argon atoms cost 0.42 s
+        against 0.06 s for an update.
+
+        Parameters
+        ----------
+        new_of_old : (natoms,) int array
+            Each atom's index among ``positions``, or -1 where it is gone;
+            every index at most once.
+        positions : (N', 3) float64
+            The new atoms' positions (Å).
+        cell, pbc : optional
+            As in :meth:`update`.
+
+        Returns
+        -------
+        dict or None
+            :meth:`update`'s record, or None (the grid unchanged) where the
+            holes are fewer than the newcomers or one would sit farther
+            than ``NEWCOMER_REACH`` site spacings from its hole: the caller
+            then builds a new grid.
+        """
+        new_of_old = np.asarray(new_of_old, dtype=np.int64)
+        positions = as_positions(positions)
+        n = len(positions)
+        if new_of_old.shape != (self.natoms,) or (new_of_old >= n).any():
+            raise ValueError(f"new_of_old: expected {self.natoms} indices below {n}")
+        sites = np.where(self._sites >= 0, new_of_old[np.maximum(self._sites, 0)], -1)
+        taken = np.zeros(n, dtype=bool)
+        taken[sites[sites >= 0]] = True
+        if np.count_nonzero(taken) != np.count_nonzero(sites >= 0):
+            raise ValueError("new_of_old: an index appears more than once")
+        newcomers = np.flatnonzero(~taken)
+        holes = np.flatnonzero(sites < 0)
+        if len(newcomers) > len(holes) or not np.isfinite(positions[newcomers]).all():
+            return None
+        if len(newcomers):
+            box = self.box if cell is None and pbc is None else Box(
+                self.box.cell if cell is None else cell, self.box.pbc if pbc is None else pbc)
+            if not box.same_as(self.box):
+                return None  # a new cell with new atoms: no common frame to place them
+            g = (positions[newcomers] @ self.box.inverse) * self.box.heights
+            hc = self._coords[holes].copy()
+            periods = self._periods
+            for a in range(3):  # the tree's torus on periodic axes
+                if periods[a] > 0:
+                    g[:, a] %= periods[a]
+                    hc[:, a] %= periods[a]
+                    # a float a hair below the period may round up to it
+                    g[g[:, a] >= periods[a], a] = 0.0
+                    hc[hc[:, a] >= periods[a], a] = 0.0
+            occupied = self._coords[self._sites >= 0]
+            span = occupied.max(axis=0) - occupied.min(axis=0) if len(occupied) else np.zeros(3)
+            span = np.where(periods > 0, periods, span)
+            volume = np.prod(span[span > 0]) if (span > 0).any() else 0.0
+            spacing = (volume / max(self._sites.size, 1)) ** (1.0 / max((span > 0).sum(), 1))
+            from scipy.spatial import cKDTree  # here: 0.1 s of import a process skips
+            k = min(8, len(holes))
+            dist, near = cKDTree(hc, boxsize=periods).query(g, k=k)
+            dist, near = dist.reshape(len(g), k), near.reshape(len(g), k)
+            used = np.zeros(len(holes), dtype=bool)
+            reach = NEWCOMER_REACH * spacing
+            for q in range(len(newcomers)):
+                for c in range(k):
+                    h = near[q, c]
+                    if not used[h]:
+                        break
+                else:
+                    return None
+                if not dist[q, c] <= reach:
+                    return None
+                used[h] = True
+                sites[holes[h]] = newcomers[q]
+        self._sites = sites
+        self.natoms = n
+        self.positions = positions.copy()  # update() replaces it
+        return self.update(positions, cell, pbc)
 
     def phase_lag(self):
         """Largest misregistration between adjacent lines of a periodic

@@ -8,6 +8,9 @@ sweeps (O(N), Boris 1985 §III), or must it be built anew (O(N log N))?
 :class:`GridTracker` is the one answer:
 
 * no grid yet, or a different number of atoms: build;
+* other atoms that share most of the old ones (a rank's local system after
+  migration, docs/design.md §11): ``MLG.renumber`` carries the grid over
+  (the newcomers take holes near them, then the update below), or build;
 * the same box (:meth:`ase_mlg.geometry.Box.same_as`: cell and pbc equal):
   ``MLG.update`` (swap sweeps; the grid itself rebuilds at its sweep cap
   or phase-lag limit);
@@ -46,7 +49,8 @@ class GridTracker:
         Cumulative ``grid_builds`` (new grids), ``grid_updates`` (grids
         moved by ``MLG.update``), ``sweeps``, ``swaps`` and
         ``grid_rebuilds`` (rebuilds inside ``MLG.update``: sweep cap, phase
-        lag, cell rank).
+        lag, cell rank), ``grid_carries`` (grids carried over to other
+        atoms, :meth:`MLG.renumber`; counted in ``grid_updates`` too).
     """
 
     def __init__(self, follow_cell=True, **grid_kwargs):
@@ -54,20 +58,29 @@ class GridTracker:
         self.grid_kwargs = grid_kwargs
         self.grid = None
         self.stats = {"grid_builds": 0, "grid_updates": 0, "sweeps": 0, "swaps": 0,
-                      "grid_rebuilds": 0}
+                      "grid_rebuilds": 0, "grid_carries": 0}
 
-    def follow(self, positions, cell, pbc):
+    def follow(self, positions, cell, pbc, renumber=None):
         """Move the grid to ``positions`` (Å) in ``cell`` with ``pbc``, or
-        build it; returns the grid."""
+        build it; returns the grid.  ``renumber``: the atoms are not those
+        of the last call but share most of them (a rank's local system
+        after migration): each old atom's index among ``positions`` or -1,
+        and the grid is carried over (:meth:`MLG.renumber`) where it can be."""
         g = self.grid
-        if g is None or g.natoms != len(positions):
+        if g is None or (g.natoms != len(positions) if renumber is None
+                         else g.natoms != len(renumber)):
             return self._build(positions, cell, pbc)
-        if self.follow_cell:
+        if not (self.follow_cell or Box(cell, pbc).same_as(g.box)):
+            return self._build(positions, cell, pbc)
+        if renumber is not None:
+            rec = g.renumber(renumber, positions, cell=cell, pbc=pbc)
+            if rec is None:
+                return self._build(positions, cell, pbc)
+            self.stats["grid_carries"] += 1
+        elif self.follow_cell:
             rec = g.update(positions, cell=cell, pbc=pbc)
-        elif Box(cell, pbc).same_as(g.box):
-            rec = g.update(positions)
         else:
-            return self._build(positions, cell, pbc)
+            rec = g.update(positions)
         st = self.stats
         st["grid_updates"] += 1
         st["sweeps"] += rec["sweeps"]

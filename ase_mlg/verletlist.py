@@ -222,7 +222,7 @@ class VerletList:
     @property
     def stats(self):
         """Cumulative ``list_builds`` and the grid's ``grid_builds``,
-        ``grid_updates``, ``sweeps``, ``swaps`` and ``grid_rebuilds``."""
+        ``grid_updates``, ``sweeps``, ``swaps``, ``grid_rebuilds`` and ``grid_carries``."""
         return {"list_builds": self._builds, **self._tracker.stats}
 
     # -- keeping it -----------------------------------------------------------
@@ -315,15 +315,18 @@ class VerletList:
         return None
 
     # -- building it ----------------------------------------------------------
-    def build(self, positions, cell, pbc, numbers=None, same_atoms=True, owned=None):
+    def build(self, positions, cell, pbc, numbers=None, renumber=None, owned=None):
         """Build the list for ``positions`` (float64 (N, 3), Å) in ``cell``
         with ``pbc``, whatever the state (the grid is updated, not rebuilt,
-        where it can be).  ``same_atoms=False`` says that the rows are not
-        the atoms of the last build (a rank's local system after migration
-        and new ghosts): the grid is then built anew, since following it
-        would sweep nearly every atom to its new label (measured at 2 ranks
-        of 108,000 atoms: 3.6 million swaps, 108 ms, against 35 ms for a
-        new grid).  ``owned``: only the pairs with one of the first
+        where it can be).  ``renumber``: the rows are not the atoms of the
+        last build (a rank's local system after migration and new ghosts)
+        but share most of them: each atom of the last build's index among
+        ``positions`` or -1 (gone).  The grid is then carried over to the
+        new numbering (:meth:`ase_mlg.grid.MLG.renumber`: 0.06 s against
+        0.42 s for a new grid at 5.8e5 atoms), or built anew where it
+        cannot be; following it without the new numbers would sweep nearly
+        every atom to its new label (3.6 million swaps at 2 ranks of
+        108,000 atoms).  ``owned``: only the pairs with one of the first
         ``owned`` atoms (a rank's own atoms before its ghosts;
         :func:`~ase_mlg.query.half_list`); a small system's list, without
         a grid, holds every pair.
@@ -336,8 +339,6 @@ class VerletList:
         force call (1.9 of 8.3 s compiling) and most of a rebuild.
         :attr:`grid` builds one on request."""
         t0 = time.perf_counter()
-        if not same_atoms:
-            self._tracker.reset()
         cell = np.asarray(cell, dtype=np.float64)
         old = self.pairs if self.pairs is not None else self._spare
         if old is not None:
@@ -357,7 +358,7 @@ class VerletList:
             self.width, positions = None, x
             inner_first = True
         else:
-            grid = self._tracker.follow(positions, cell, pbc)
+            grid = self._tracker.follow(positions, cell, pbc, renumber)
             positions = grid.positions  # the same numbers, as float64 C arrays
             self.timings["grid"] += time.perf_counter() - t0
             self.width = template(grid, numbers) if callable(template) else template
@@ -439,11 +440,11 @@ class VerletList:
             order = np.ascontiguousarray(sites[sites >= 0], dtype=np.int64)
         return PairList.from_pairs(order, np.zeros((len(order), 3), np.int64), i, j, S)
 
-    def rebuild(self, positions, cell, pbc, numbers=None, same_atoms=True, owned=None):
+    def rebuild(self, positions, cell, pbc, numbers=None, renumber=None, owned=None):
         """:meth:`build`, and the kernel's positions (:attr:`X`,
         :attr:`svec`): what :meth:`update` does when the list does not hold."""
         cell = np.asarray(cell, dtype=np.float64)
-        self.build(positions, cell, pbc, numbers, same_atoms=same_atoms, owned=owned)
+        self.build(positions, cell, pbc, numbers, renumber=renumber, owned=owned)
         t0 = time.perf_counter()
         if self.X is None:
             self._gather(self.positions, cell)

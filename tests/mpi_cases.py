@@ -116,7 +116,8 @@ def _nudge(atoms):
 
 def md_runs(make, nsteps=150, logfile=None, trajectory=None):
     """For NVE then Langevin, each on ``make()`` (plain or distributed
-    atoms): (energy trace, final positions in original order, migrations).
+    atoms): (energy trace, final positions in original order, (migrations,
+    grids carried over)).
     The NVE run writes ``logfile`` and ``trajectory``."""
     from ase import units
 
@@ -145,8 +146,10 @@ def md_runs(make, nsteps=150, logfile=None, trajectory=None):
             dyn.attach(lambda: None, interval=3)
         dyn.run(nsteps)
         whole = a.gather() if is_distributed(a) else a
-        out.append((np.array(trace), whole.positions.copy(),
-                    a.calc._ranks.counts["migrated"] if is_distributed(a) else 0))
+        # migrations, and grids carried over to a rank's new local atoms
+        moves = ((a.calc._ranks.counts["migrated"], a.calc._ranks.vl.stats["grid_carries"])
+                 if is_distributed(a) else (0, 0))
+        out.append((np.array(trace), whole.positions.copy(), moves))
         logfile = trajectory = None
         if hasattr(dyn, "closelater"):
             dyn.close()
@@ -173,7 +176,8 @@ def physics(outdir):
             res[f"{name}_stress"] = s
     (nve, x_nve, mig), (nvt, x_nvt, _) = md_runs(
         lambda: distribute(_md_system()), logfile=os.path.join(outdir, "md.log"), trajectory=os.path.join(outdir, "md.traj"))
-    res.update(nve=nve, x_nve=x_nve, nvt=nvt, x_nvt=x_nvt, migrated=np.array(mig))
+    res.update(nve=nve, x_nve=x_nve, nvt=nvt, x_nvt=x_nvt, migrated=np.array(mig[0]),
+               carried=np.array(mig[1]))  # rank 0's
     res.update({f"balance_{k}": v for k, v in balance(vapour_slab()).items()})
     if rank == 0:
         np.savez(os.path.join(outdir, "physics.npz"), **res)

@@ -407,3 +407,62 @@ def test_other_thread_counts_load_the_cached_kernels():
         assert res.returncode == 0, res.stderr[-2000:]
         outs.append(res.stdout)
     assert outs[0] == outs[1]
+
+
+def _renumbered_scene(seed, ndrop, nnew, n=3000, L=40.0):
+    """A periodic gas, then most of its atoms under new numbers: ``ndrop``
+    gone, ``nnew`` newcomers near where atoms were, every atom moved a
+    little (a rank's local atoms after migration, as in ranks/engine.py)."""
+    rng = np.random.default_rng(seed)
+    x = rng.random((n, 3)) * L
+    gone = rng.choice(n, ndrop, replace=False)
+    kept = np.setdiff1d(np.arange(n), gone)
+    newcomers = x[rng.choice(n, nnew)] + rng.normal(scale=0.5, size=(nnew, 3))
+    y = np.concatenate([x[kept], newcomers]) + rng.normal(scale=0.05, size=(len(kept) + nnew, 3))
+    perm = rng.permutation(len(y))  # new index of each row of y
+    new_of_old = np.full(n, -1)
+    new_of_old[kept] = perm[:len(kept)]
+    out = np.empty_like(y)
+    out[perm] = y
+    return x, out, new_of_old, np.eye(3) * L
+
+
+@pytest.mark.parametrize("seed,ndrop,nnew", [(0, 40, 30), (1, 0, 0), (2, 60, 0), (3, 5, 25)])
+def test_renumber_carries_the_grid_over_to_new_numbers(seed, ndrop, nnew):
+    x, y, new_of_old, cell = _renumbered_scene(seed, ndrop, nnew)
+    grid = MLG(x, cell, True)
+    generation, nholes = grid.generation, grid.nholes
+    assert nholes >= nnew - ndrop
+    before = grid.sites.copy()
+    rec = grid.renumber(new_of_old, y)
+    assert rec is not None and not rec["rebuilt"]
+    assert grid.generation == generation  # the order was kept, not built anew
+    check_valid(grid, len(y))
+    assert np.array_equal(grid.positions, y)
+    # every atom kept stays near its old site (the sweeps only repaired)
+    kept = before >= 0
+    moved = grid.sites[kept] != np.where(kept, new_of_old[np.maximum(before, 0)], -2)[kept]
+    assert moved.mean() < 0.2
+
+
+def test_renumber_refuses_what_it_cannot_carry():
+    x, y, new_of_old, cell = _renumbered_scene(4, 10, 40)
+    grid = MLG(x, cell, True)
+    new_of_old_short = new_of_old.copy()
+    # more newcomers than holes: None, the grid untouched
+    many = np.concatenate([y, y[:grid.nholes + 50] + 0.01])
+    sites = grid.sites.copy()
+    assert grid.renumber(np.full(len(x), -1), many) is None
+    assert np.array_equal(grid.sites, sites) and grid.natoms == len(x)
+    # a newcomer far from every hole: None
+    far = y.copy()
+    far[np.flatnonzero(np.isin(np.arange(len(y)), new_of_old, invert=True))[0]] += 1e3
+    assert MLG(x, cell, False).renumber(new_of_old_short, far) is None
+    with pytest.raises(ValueError, match="new_of_old"):
+        grid.renumber(new_of_old[:-1], y)
+    dup = new_of_old.copy()
+    dup[np.flatnonzero(dup >= 0)[:2]] = dup[np.flatnonzero(dup >= 0)[0]]
+    with pytest.raises(ValueError, match="more than once"):
+        grid.renumber(dup, y)
+    with pytest.raises(ValueError, match="new_of_old"):
+        grid.renumber(np.full(len(x), len(y)), y)

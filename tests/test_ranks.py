@@ -112,6 +112,8 @@ def test_nve_and_langevin_runs_follow_the_serial_ones(runs, serial, nranks):
     assert np.abs(got["x_nve"] - serial["x_nve"]).max() < 1e-8
     if nranks != "1":
         assert int(got["migrated"]) > 0  # atoms crossed ranks on the way
+        # and rank 0 carried its grid over to its new local atoms (MLG.renumber)
+        assert int(got["carried"]) > 0
     # Langevin: the noise is keyed by original index, so any rank count
     # (1 included) gives one trajectory, which is not ASE's serial draws
     one = runs["1"][0]

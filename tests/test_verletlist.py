@@ -236,3 +236,27 @@ def test_images_in_rank_order_remade_after_the_gather():
     np.testing.assert_array_equal(pl.images, before)
     assert pl.images.flags.c_contiguous
     np.testing.assert_array_equal(pl.positions(pos, cell), X)
+
+
+def test_a_list_on_a_grid_carried_to_new_numbers_is_the_exact_one():
+    """VerletList.build(renumber=...) (a rank's local atoms after
+    migration): the grid is carried over, and the list is brute force's."""
+    rng = np.random.default_rng(7)
+    n, L = 1500, 24.0
+    x = rng.random((n, 3)) * L
+    cell, pbc = np.eye(3) * L, np.array([True, True, False])
+    vl = VerletList.allocate(x, cell, pbc, RC, skin=SKIN)
+    vl.build(x, cell, pbc)
+    gone = rng.choice(n, 30, replace=False)
+    kept = np.setdiff1d(np.arange(n), gone)
+    y = np.concatenate([x[kept], x[gone[:20]] + 0.2])
+    y += rng.normal(scale=0.05, size=y.shape)
+    perm = rng.permutation(len(y))
+    new_of_old = np.full(n, -1)
+    new_of_old[kept] = perm[:len(kept)]
+    z = np.empty_like(y)
+    z[perm] = y
+    carries = vl.stats["grid_carries"]
+    vl.build(z, cell, pbc, renumber=new_of_old)
+    assert vl.stats["grid_carries"] == carries + 1
+    assert _held(vl, z, cell) == _within(z, cell, pbc, RC + SKIN)

@@ -87,6 +87,39 @@ def _own_pairs(rowptr, nbr, code, ghost, index, image, degree):
     return w
 
 
+def renumbering(old, new, pbc):
+    """Each atom of the last local system's index in the new one (-1: gone),
+    for :meth:`ase_mlg.grid.MLG.renumber` (every one gone where an atom is
+    not unique: then the grid is built anew).
+
+    ``old`` and ``new`` are ``(indices, images)``: a local atom is its
+    index in the original atoms and its periodic image along the local
+    system's open axes.  Along a periodic axis of the local system (``pbc``
+    True) another image is the same site to the grid (an atom wrapped into
+    the region), so it is not compared."""
+    (oid, oim), (nid, nim) = old, new
+    if len(oid) == 0 or len(nid) == 0:
+        return np.full(len(oid), -1, dtype=np.int64)
+    open_ = ~np.asarray(pbc, dtype=bool)
+    oim, nim = oim * open_, nim * open_
+    lo = np.minimum(oim.min(axis=0), nim.min(axis=0))
+    span = np.maximum(oim.max(axis=0), nim.max(axis=0)) - lo + 1
+
+    def keys(ids, im):
+        im = im - lo
+        return ((ids.astype(np.int64) * span[0] + im[:, 0]) * span[1] + im[:, 1]) * span[2] \
+            + im[:, 2]
+
+    okey, nkey = keys(oid, oim), keys(nid, nim)
+    order = np.argsort(nkey)
+    sorted_keys = nkey[order]
+    at = np.minimum(np.searchsorted(sorted_keys, okey), len(nkey) - 1)
+    out = np.where(sorted_keys[at] == okey, order[at], -1)
+    if (sorted_keys[1:] == sorted_keys[:-1]).any() or (np.diff(np.sort(okey)) == 0).any():
+        out[:] = -1
+    return out
+
+
 def _finite(atoms):
     """ValueError naming (by original index) atoms whose position is not finite."""
     pos = atoms.arrays["positions"]
@@ -200,15 +233,12 @@ class RankEngine:
         self._local_numbers = np.concatenate([atoms.numbers, halo.ghost_numbers])
         ids = np.concatenate([atoms.indices, halo.ghost_indices])
         images = np.concatenate([halo.own_images, halo.ghost_images])
-        # migration and new ghosts relabel the local atoms: the grid then
-        # follows nothing it knew, and is built anew.  A new image along a
-        # periodic axis of the local system (an atom wrapped into the
-        # region) is the same site to the grid.
-        same = (self._ids is not None and np.array_equal(self._ids[0], ids)
-                and not ((self._ids[1] != images) & ~halo.pbc).any())
+        # migration and new ghosts renumber the local atoms: the grid is
+        # carried over to the new numbers (a new one cost 7x its update)
+        renumber = None if self._ids is None else renumbering(self._ids, (ids, images), halo.pbc)
         # the ghosts' own pairs are left out of the scan (12.6 % of the
         # pairs at 2 ranks of 108,000 argon atoms)
-        vl.rebuild(local, atoms.cell.array, halo.pbc, self._local_numbers, same_atoms=same,
+        vl.rebuild(local, atoms.cell.array, halo.pbc, self._local_numbers, renumber=renumber,
                    owned=len(atoms))
         self._ids = (ids, images)
         pl = vl.pairs
