@@ -101,7 +101,7 @@ class Halo:
     def __init__(self, comm, partition, positions, numbers, indices):
         self.comm = comm
         box = partition.box
-        frac = box.fractional(positions)
+        frac = partition.fractional(positions, wrap=False)
         self.own_images = _own_images(frac, box.pbc)
         h = partition.reach / box.heights
         self.sends = {}  # rank -> (owned index, integer image) of the ghosts sent there

@@ -32,12 +32,27 @@ import numpy as np
 
 from ..decomposition import ALPHAS, factor_mlg, first_balanced, least_volume_factorisations
 from ..geometry import Box, grid_shape
+from ..jit import njit
 
 __all__ = ["Partition", "balanced_partition", "imbalance", "BISECTIONS"]
 
 #: Rounds of bisection for each cut: 2^-60 of the coordinate range, far
 #: below the spacing of any two atoms' coordinates.
 BISECTIONS = 60
+
+
+@njit(cache=True)
+def _fractional(positions, inverse, out):
+    # a loop, not numpy's product ``positions @ inverse``: numpy hands that
+    # to its BLAS, which under mpiexec starts threads of its own in every
+    # rank; on cores the ranks share, one such product took 136 ms instead
+    # of 3 (2 ranks of 10^6 argon atoms on 2 cores, six a rebuild: a tenth
+    # of every MD step), unless the user had set OPENBLAS_NUM_THREADS=1
+    for i in range(positions.shape[0]):
+        p0, p1, p2 = positions[i, 0], positions[i, 1], positions[i, 2]
+        for c in range(3):
+            out[i, c] = p0 * inverse[0, c] + p1 * inverse[1, c] + p2 * inverse[2, c]
+    return out
 
 
 def _weighted_cuts(comm, coord, group, ngroups, pieces, weight, lo, hi):
@@ -167,9 +182,13 @@ class Partition:
             out[sel] = np.searchsorted(cuts[g], values[sel], side="right")
         return out
 
-    def fractional(self, positions):
-        """Fractional coordinates, wrapped into [0, 1) on periodic axes."""
-        f = self.box.fractional(positions)
+    def fractional(self, positions, wrap=True):
+        """Fractional coordinates, wrapped into [0, 1) on periodic axes
+        (``wrap``)."""
+        positions = np.ascontiguousarray(positions, dtype=np.float64)
+        f = _fractional(positions, self.box.inverse, np.empty((len(positions), 3)))
+        if not wrap:
+            return f
         for a in np.flatnonzero(self.box.pbc):  # columns in place, no fancy-index copies
             col = f[:, a]
             col -= np.floor(col)
