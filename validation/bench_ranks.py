@@ -15,7 +15,9 @@ yes``), then the breakdown: ase-mlg's engine timings per step (halo
 exchange, rebuilds = partition + migration + ghost lists, the local list,
 the pair sum; the integrator and ASE the rest) beside LAMMPS's own
 Pair/Neigh/Comm/Modify/Other from a second, untimed run.  Peak RSS is the
-largest rank's.  Also ase-mlg at 1 rank x 2 threads.  Medians over
+largest rank's.  ``OPENBLAS_NUM_THREADS`` is left as the user has it (a
+user launching ``mpiexec`` does not set it; until session 22 this script set
+it to 1, which hid 136 ms a BLAS product took in each rank's rebuild).  Also ase-mlg at 1 rank x 2 threads.  Medians over
 launches; spread = max / min.
 """
 
@@ -98,7 +100,7 @@ def worker_lammps(natoms, steps, warm, tmp):
 
 def launch(tool, nranks, threads, natoms, steps, warm, tmp):
     env = dict(os.environ, NUMBA_NUM_THREADS=str(threads), OMP_NUM_THREADS=str(threads),
-               OPENBLAS_NUM_THREADS="1", PYTHONWARNINGS="ignore")
+               PYTHONWARNINGS="ignore")
     mpiexec = os.path.join(os.path.dirname(sys.executable), "mpiexec")
     cmd = [mpiexec, "-n", str(nranks), sys.executable, __file__, "--worker", tool,
            "--atoms", str(natoms), "--steps", str(steps), "--warm", str(warm), "--tmp", tmp]
