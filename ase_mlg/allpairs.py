@@ -72,7 +72,7 @@ from .jit import njit
 from .geometry import Box, as_pbc
 from .pairlist import PairOutput, ase_vector, put_pair
 
-__all__ = ["all_pairs", "half_pairs", "MAX_WORK"]
+__all__ = ["all_pairs", "half_pairs", "within_reach", "MAX_WORK"]
 
 #: Above this many tested images (atom pairs ``n (n + 1) / 2`` times the
 #: images a pair spans, ``prod(2 rc / h_a + 1)`` over periodic axes:
@@ -426,6 +426,13 @@ def _arguments(cell, pbc, pair_cutoff, self_interaction):
     return np.ascontiguousarray(cell), pbc, cutoff, bool(self_interaction)
 
 
+def within_reach(natoms, max_work=MAX_WORK):
+    """Whether ``natoms`` atoms may take this path: their atom pairs alone,
+    at one image each, are within ``max_work`` (a further test counts the
+    images).  False: :func:`half_pairs` and :func:`all_pairs` answer None."""
+    return 0.5 * natoms * (natoms + 1) <= max_work
+
+
 def _call(positions, args, max_work):
     """The half list's rows ``(frame, store, m)``, ``store[:m]`` = (i, j,
     S) in (i, j, S) order (:func:`_half_pairs`), on Box's
@@ -434,7 +441,7 @@ def _call(positions, args, max_work):
     path raises); None where the large path must answer."""
     cell, pbc, cutoff, self_interaction = args
     n = len(positions)
-    if 0.5 * n * (n + 1) > max_work:
+    if not within_reach(n, max_work):
         # beyond the work bound whatever the images (one at least): the
         # large path's, without compiling the kernel for nothing (3 s of a
         # first call of 10^4 atoms)

@@ -299,3 +299,34 @@ def test_a_ranks_ghost_images_are_every_image_in_its_box(seed, n, self_rank):
     got = [(int(i), *map(int, g)) for i, g in zip(idx, img)]
     assert got == want
     assert np.array_equal(own, -np.where(pbc, np.floor(frac), 0).astype(np.int64))
+
+
+def _renumbering_oracle(old, new, pbc):
+    """Brute force: a dict of the new atoms' (index, open-axis image)."""
+    open_ = ~np.asarray(pbc, dtype=bool)
+    (oid, oim), (nid, nim) = old, new
+    where = {}
+    for k, (i, im) in enumerate(zip(nid.tolist(), (nim * open_).tolist())):
+        if (i, tuple(im)) in where:
+            return np.full(len(oid), -1)
+        where[(i, tuple(im))] = k
+    out = np.array([where.get((i, tuple(im)), -1)
+                    for i, im in zip(oid.tolist(), (oim * open_).tolist())], dtype=np.int64)
+    hit = out[out >= 0]
+    return np.full(len(oid), -1) if len(set(hit.tolist())) != len(hit) else out
+
+
+@settings(max_examples=200, deadline=None)
+@given(nold=st.integers(0, 40), nnew=st.integers(0, 40), ids=st.integers(1, 30),
+       span=st.integers(0, 3), pbc=st.tuples(st.booleans(), st.booleans(), st.booleans()),
+       seed=st.integers(0, 2**31))
+def test_renumbering_matches_brute_force(nold, nnew, ids, span, pbc, seed):
+    """The engine's relabelling of a rank's local atoms between builds
+    (index and image along open axes) equals a dict's, duplicates included."""
+    from ase_mlg.ranks.engine import renumbering
+    rng = np.random.default_rng(seed)
+    old = (rng.integers(0, ids, nold), rng.integers(-span, span + 1, (nold, 3)))
+    new = (rng.integers(0, ids, nnew), rng.integers(-span, span + 1, (nnew, 3)))
+    got = renumbering(old, new, pbc)
+    assert got.dtype == np.int64 and got.shape == (nold,)
+    assert np.array_equal(got, _renumbering_oracle(old, new, pbc))

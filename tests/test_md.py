@@ -276,6 +276,29 @@ def test_step_returns_read_only_forces():
     np.testing.assert_array_equal(f, atoms.get_forces())
 
 
+@pytest.mark.parametrize("cls", [VelocityVerlet, Langevin])
+def test_a_step_lets_go_of_the_old_forces_before_the_force_call(cls):
+    """The old forces (and, across ranks, the pre-migration positions and
+    momenta) must be free when the calculator builds a list, the memory
+    peak: the step holds no reference to them during its force call."""
+    import weakref
+    atoms = setup("mlg")
+    dyn = (cls(atoms, DT) if cls is VelocityVerlet
+           else cls(atoms, DT, temperature_K=120.0, friction=0.01, rng=np.random.default_rng(1)))
+    dyn.run(1)
+    calc, seen = atoms.calc, []
+    old = weakref.ref(calc.results["forces"])
+    real = calc.calculate
+
+    def spy(*args, **kwargs):
+        seen.append(old() is None)
+        return real(*args, **kwargs)
+
+    calc.calculate = spy
+    dyn.run(1)
+    assert seen == [True]
+
+
 def test_other_constraints_run_ases_step():
     ref, got = setup("mlg"), setup("mlg")
     for a in (ref, got):

@@ -169,6 +169,8 @@ class Langevin(CompiledRefresh, _ASELangevin):
                        LangevinCoefficients(c1, c2, dt), fixed)
         # ASE stores the velocity and the noise as attributes (Asap reads them)
         self.v, self.rnd_pos, self.rnd_vel = v, rnd_pos, rnd_vel
+        # the step's arrays let go before the force call (see VelocityVerlet.step)
+        x = p = f = xi = eta = rnd_pos = None
         if distributed:
             # atoms may migrate in the force call: the half step's state goes with them
             atoms.arrays["mlg_langevin_v"], atoms.arrays["mlg_langevin_rnd_vel"] = v, rnd_vel
@@ -179,6 +181,7 @@ class Langevin(CompiledRefresh, _ASELangevin):
             fixed = no_fixed(len(p))
         else:
             f = forces_now(atoms, known=known)
+            p = atoms.arrays["momenta"]
         langevin_kick(v, p, f, m, rnd_vel, c1, c2, fixed)
         self._end(atoms, m_now)
         ro = f.view()

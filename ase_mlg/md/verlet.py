@@ -85,7 +85,11 @@ class VelocityVerlet(CompiledRefresh, _ASEVelocityVerlet):
         # the calculator sees the new positions through check_state (the
         # arrays were written in place, as ASE's set_array does); momenta
         # are stored before the force call, as ASE does for Asap.  Read
-        # them again after it: a distributed system migrates atoms there
+        # them again after it: a distributed system migrates atoms there.
+        # The step lets go of its arrays first, so that the old forces (and
+        # a rank's pre-migration positions and momenta) are freed before the
+        # rebuild's peak, not after: 37 MB a rank at 2 ranks of 10^6 atoms
+        x = p = f = None
         f = forces_now(atoms, known=known)
         p = atoms.arrays["momenta"]
         verlet_kick(p, f, dt, fixed if len(fixed) == len(p) else no_fixed(len(p)))
