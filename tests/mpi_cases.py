@@ -211,6 +211,19 @@ def errors(outdir):
         p.calc.results.clear()
         p.get_forces()
     got["flying"] = _message(forces)
+    # finite but 2**30 cells out: int32 images refuse it on every rank (the
+    # others are then not left waiting in the halo's collectives)
+    far = distribute(atoms)
+    far.calc = MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5))
+    far.get_forces()
+    if rank == 1:
+        far.positions[5, 0] = 1e13
+        got["far_index"] = int(far.indices[5])
+
+    def far_forces():
+        far.calc.results.clear()
+        far.get_forces()
+    got["far"] = _message(far_forces)
     other = _md_system()
     if rank == 1:
         other.positions[0] += 0.01

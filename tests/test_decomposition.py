@@ -284,7 +284,8 @@ def test_a_ranks_ghost_images_are_every_image_in_its_box(seed, n, self_rank):
     low = rng.uniform(-0.3, 0.6, 3)
     high = low + rng.uniform(0.05, 1.2, 3)
     low[~pbc & (rng.random(3) < 0.3)] = -np.inf
-    own = _own_images(frac, pbc)
+    own, far = _own_images(frac, pbc)
+    assert far == -1 and own.dtype == np.int32
     idx, img = _face_images(frac, own, pbc, low, high, cut, self_rank)
     want = []
     for a in range(n):
@@ -330,3 +331,17 @@ def test_renumbering_matches_brute_force(nold, nnew, ids, span, pbc, seed):
     got = renumbering(old, new, pbc)
     assert got.dtype == np.int64 and got.shape == (nold,)
     assert np.array_equal(got, _renumbering_oracle(old, new, pbc))
+
+
+def test_a_ranks_images_refuse_an_atom_too_far_out():
+    """int32 images: an atom 2**30 cells or more out on a periodic axis (or
+    not finite) is named, not wrapped into a wrong image; on an open axis
+    its image stays 0."""
+    from ase_mlg.ranks.halo import _own_images
+    frac = np.array([[0.5, 0.5, 0.5], [-3.2, 0.1, 7.9], [0.2, 2.0 ** 31, 0.3],
+                     [np.nan, 0.0, 0.0]])
+    own, far = _own_images(frac[:2], np.array([True, True, True]))
+    assert far == -1 and own.tolist() == [[0, 0, 0], [4, 0, -7]]
+    assert _own_images(frac, np.array([True, True, True]))[1] == 2
+    assert _own_images(frac, np.array([True, False, True]))[1] == 3
+    assert _own_images(frac[:3], np.array([True, False, True]))[1] == -1

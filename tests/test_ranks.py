@@ -148,6 +148,9 @@ def test_errors_reach_every_rank(tmp_path, nranks):
     for g in got:
         assert g["flying"].startswith("ValueError") and f"[{index}]" in g["flying"], g
         assert "rank 1" in g["flying"]
+        far = got[1]["far_index"]
+        assert g["far"].startswith("ValueError") and f"[{far}]" in g["far"], g
+        assert "2**30 cells" in g["far"]
         assert g["different"].startswith("ValueError") and "[1]" in g["different"], g
         assert g["too_many"].startswith("ValueError") and "ranks on too few sites" in g["too_many"]
 

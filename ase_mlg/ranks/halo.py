@@ -85,13 +85,15 @@ class Halo:
 
     Attributes
     ----------
-    own_images : (n, 3) int64
+    own_images : (n, 3) int32
         The cell image that brings each owned atom into its region (its
-        local position is ``x + own_images @ cell``).
+        local position is ``x + own_images @ cell``).  int32, as the
+        ghosts' images: int64 held 20 MB more at a rank's rebuild peak (2
+        ranks of 10^6 atoms); an atom 2^30 cells out is refused, named.
     ghost_numbers, ghost_indices : (g,) int64
         The ghosts' atomic numbers and original indices, in the order of
         :meth:`exchange`.
-    ghost_images : (g, 3) int64
+    ghost_images : (g, 3) int32
         The cell image each ghost is its owner's position plus.
     pbc : (3,) bool
         The local system's periodic axes: the system's, less the cut ones
@@ -102,7 +104,13 @@ class Halo:
         self.comm = comm
         box = partition.box
         frac = partition.fractional(positions, wrap=False)
-        self.own_images = _own_images(frac, box.pbc)
+        self.own_images, far = _own_images(frac, box.pbc)
+        # on every rank (the others would wait in the collectives below)
+        far = [a for a in comm.allgather(int(np.asarray(indices)[far]) if far >= 0 else -1)
+               if a >= 0]
+        if far:
+            raise ValueError(f"positions: atoms {far} (original indices) are 2**30 cells or "
+                             f"more out of the periodic cell, or not finite")
         h = partition.reach / box.heights
         self.sends = {}  # rank -> (owned index, integer image) of the ghosts sent there
         for r in range(comm.size):
@@ -125,7 +133,7 @@ class Halo:
                                          np.int64, ())
         self.ghost_indices = self._trade(lambda idx, img: np.asarray(indices, np.int64)[idx],
                                          np.int64, ())
-        self.ghost_images = self._trade(lambda idx, img: img, np.int64, (3,))
+        self.ghost_images = self._trade(lambda idx, img: img, np.int32, (3,))
 
     def _trade(self, pack, dtype, tail, out=None):
         """Send ``pack(idx, img)`` of every send list and receive the
@@ -190,16 +198,25 @@ class Halo:
                            np.float64, (3,), out)
 
 
+#: Farthest cell image a rank keeps (int32 images), in cells.
+FAR_CELLS = 2.0 ** 30
+
+
 @njit(cache=True)
 def _own_images(frac, pbc):
     """The cell image that brings each atom into the cell on the periodic
-    axes (``-floor(frac)``; 0 on the others)."""
-    own = np.zeros(frac.shape, np.int64)
+    axes (``-floor(frac)``; 0 on the others), int32; and the first atom
+    :data:`FAR_CELLS` or more out (or not finite) on a periodic axis, -1 if
+    none."""
+    own = np.zeros(frac.shape, np.int32)
     for a in range(frac.shape[0]):
         for ax in range(3):
             if pbc[ax]:
-                own[a, ax] = -np.int64(np.floor(frac[a, ax]))
-    return own
+                f = np.floor(frac[a, ax])
+                if not (-FAR_CELLS < f < FAR_CELLS):
+                    return own, a
+                own[a, ax] = -np.int32(f)
+    return own, -1
 
 
 @njit(cache=True)
@@ -221,11 +238,11 @@ def _face_images(frac, own, pbc, low, high, cut, self_rank):
     hi = np.zeros(3, np.int64)
     count = 0
     idx = np.empty(0, np.int64)
-    img = np.empty((0, 3), np.int64)
+    img = np.empty((0, 3), np.int32)
     for sweep in range(2):
         if sweep == 1:
             idx = np.empty(count, np.int64)
-            img = np.empty((count, 3), np.int64)
+            img = np.empty((count, 3), np.int32)
         q = 0
         for a in range(n):
             near = True
