@@ -169,8 +169,9 @@ class Langevin(CompiledRefresh, _ASELangevin):
                        LangevinCoefficients(c1, c2, dt), fixed)
         # ASE stores the velocity and the noise as attributes (Asap reads them)
         self.v, self.rnd_pos, self.rnd_vel = v, rnd_pos, rnd_vel
-        # the step's arrays let go before the force call (see VelocityVerlet.step)
-        x = p = f = xi = eta = rnd_pos = None
+        # the step's arrays let go before the force call (see VelocityVerlet.step);
+        # rnd_pos stays alive as ASE's attribute
+        x = p = f = xi = eta = None
         if distributed:
             # atoms may migrate in the force call: the half step's state goes with them
             atoms.arrays["mlg_langevin_v"], atoms.arrays["mlg_langevin_rnd_vel"] = v, rnd_vel
