@@ -134,11 +134,13 @@ class MLGCalculator(Calculator):
         of what a pair potential reads: a fifth of ASE's ``compare_atoms`` (a third
         of an MD step at 10^4 atoms) and stricter, so at worst a call is repeated."""
         old = self.atoms
-        changes = list(all_changes) if old is None or len(old) != len(atoms) else [
-            name for name, a, b in (("positions", old.positions, atoms.positions),
-                                    ("numbers", old.numbers, atoms.numbers),
-                                    ("cell", old.cell.array, atoms.cell.array),
-                                    ("pbc", old.pbc, atoms.pbc)) if not same(a, b)]
+        if old is None or len(old) != len(atoms):
+            changes = list(all_changes)
+        else:  # a call each, no tuples looped over (1 µs of a 256-atom call)
+            a, b = old.arrays, atoms.arrays
+            changes = [k for k in ("positions", "numbers") if not same(a[k], b[k])]
+            changes += [] if same(old.cell.array, atoms.cell.array) else ["cell"]
+            changes += [] if same(old.pbc, atoms.pbc) else ["pbc"]
         # ranks decide together: one rank computing alone would wait forever
         return RankEngine.union(atoms.comm, changes) if is_distributed(atoms) else changes
 
@@ -170,14 +172,12 @@ class MLGCalculator(Calculator):
         atoms = self.atoms = self._stored = stored_atoms(
             self._stored, self.atoms if atoms is None else atoms,
             positions_only=all(name == "positions" for name in system_changes))
-        positions = atoms.positions
+        positions = atoms.positions  # NaN/inf fail the list's test; the grid names the atoms
         if not (positions.dtype == np.float64 and positions.flags.c_contiguous):
             positions = as_positions(positions)
-        # NaN/inf positions fail the list's test, and the grid names the atoms
         cell, vl = atoms.cell.array, self.verlet_list
-        # the last chunks' buffers go with the list they were made for: held
-        # here through a rebuild they were alive beside the new ones (+12 %
-        # of the peak at 10^6 atoms)
+        # the last chunks' buffers go with their list: held through a rebuild
+        # they were alive beside the new ones (+12 % of the peak at 10^6 atoms)
         self._last_chunks = None
         vl.update(positions, cell, atoms.pbc, atoms.numbers,
                   numbers_same="numbers" not in system_changes)

@@ -33,6 +33,8 @@ thread count (tests/test_thread_determinism.py).
 
 from collections import namedtuple
 
+import operator
+
 import numpy as np
 from numba import prange
 
@@ -173,6 +175,7 @@ class RowChunks:
         self.nchunk = len(self.arrays.rows) - 1
         self.entries = int(self.arrays.offset[-1])
         self._buffers = {}
+        self._memo = None
 
     def buffers(self, energies, virials):
         """Force buffer float64[entries, 3] and, when asked, the per-atom
@@ -185,6 +188,16 @@ class RowChunks:
             self._buffers[key] = (np.empty((e, 3)), np.empty(e if energies else 0),
                                   np.empty((e if virials else 0, 6)))
         return self._buffers[key]
+
+    def memo(self, key, make):
+        """``make()``, made again only when ``key`` (a tuple) differs from
+        the last call's in any item, compared by identity: what a pair sum
+        hands its kernel for this list's arrays, kept with the list (and
+        freed with it) rather than built every call."""
+        memo = self._memo
+        if memo is None or len(memo[0]) != len(key) or not all(map(operator.is_, memo[0], key)):
+            memo = self._memo = (key, make())
+        return memo[1]
 
     def threads_used(self):
         """Distinct numba threads that ran the chunks on the last call."""

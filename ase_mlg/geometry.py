@@ -78,15 +78,16 @@ def same(a, b):
         b = np.asarray(b)
     if a.shape != b.shape:
         return False
-    if a.dtype == b.dtype and a.dtype.kind in "biu" and a.nbytes <= 1 << 16:
+    dtype = a.dtype
+    if dtype.kind in "biu" and dtype == b.dtype and a.nbytes <= 1 << 16:
         return a.tobytes() == b.tobytes()
     if a.size <= 64:
         return a.tolist() == b.tolist()
     # positions after an MD step differ at once: a full pass only where the
     # first entries agree (NaN is unequal here too)
-    if a.flat[0] != b.flat[0]:
+    if a.item(0) != b.item(0):
         return False
-    if a.dtype == b.dtype and a.nbytes > 1 << 16 and a.nbytes % 8 == 0 \
+    if dtype == b.dtype and a.nbytes > 1 << 16 and a.nbytes % 8 == 0 \
             and a.flags.c_contiguous and b.flags.c_contiguous:
         return _same_words(a.reshape(-1).view(np.uint64), b.reshape(-1).view(np.uint64))
     return bool(np.array_equal(a, b))

@@ -50,7 +50,8 @@ from .pairlist import flat, pair_vector
 from .parallel import serial_and_parallel, use_threads
 
 __all__ = ["SumList", "SumTables", "SumOutputs", "PairError",
-           "pair_kernel", "is_built_in", "built_in_form", "first_bad_pair", "pair_geometry",
+           "pair_kernel", "is_built_in", "built_in_form", "first_bad_pair", "bad_pair_error",
+           "pair_geometry",
            "shift_vectors", "pair_vectors"]
 
 
@@ -479,6 +480,57 @@ def first_bad_pair(pair, lst, code, pot):
             if not (math.isfinite(e) and math.isfinite(s)):
                 return q, PairError.NON_FINITE
     return -1, PairError.OK
+
+
+def bad_pair_error(potential, lst, code, pot=None, cause=None):
+    """The ValueError naming the first bad pair of ``lst`` (a
+    :class:`SumList`, image codes ``code``) for ``potential`` (a
+    :class:`~ase_mlg.potentials.PairPotential`): the one
+    :func:`first_bad_pair` flags with the tables ``pot``, or without them
+    the first whose pair function raises an ArithmeticError (``cause``:
+    None if none does).  The error path only: a scan in Python."""
+    if pot is not None:
+        q, why = first_bad_pair(potential.pair, lst, code, pot)
+        if q < 0:
+            return ValueError('non-finite total energy or force (overflow of the pair sums)')
+    else:
+        q, why = _raising_pair(potential, lst, code), PairError.NON_FINITE
+        if q < 0:
+            return None
+    t, u, r = pair_geometry(lst, code, q)
+    ta, tb = lst.types[t], lst.types[u]
+    where = f'atoms {lst.order[t]} and {lst.order[u]} at distance {r:.6g} Å'
+    if why == PairError.BAD_DISTANCE:
+        return ValueError(f'{where}: distance must be > 0 (overlapping atoms?)')
+    if why == PairError.BELOW_RMIN:
+        return ValueError(f'{where}: closer than rmin {potential.rmin[ta, tb]} '
+                          f'Å for {potential._type_name(ta, tb)}')
+    if cause is not None:
+        what = f'{type(cause).__name__}: {cause}'
+    else:
+        e, dedr = _call_pair(potential, r, ta, tb)
+        what = f'energy {e}, dE/dr {dedr}'
+    return ValueError(f'{where}: non-finite pair energy or force ({what})')
+
+
+def _raising_pair(potential, lst, code):
+    for q in range(int(lst.rowptr[-1])):
+        t, u, r = pair_geometry(lst, code, q)
+        ta, tb = lst.types[t], lst.types[u]
+        if 0 < r <= potential.cutoffs[ta, tb]:
+            try:
+                _call_pair(potential, r, ta, tb)
+            except ArithmeticError:
+                return q
+    return -1
+
+
+def _call_pair(potential, r, ta, tb):
+    """``(e, dE/dr)`` of one pair at distance ``r``."""
+    if potential.squared:
+        e, du = potential.pair(r * r, potential.params[ta, tb])
+        return e, du * r
+    return potential.pair(r, potential.params[ta, tb])
 
 
 def pair_geometry(lst, code, q):

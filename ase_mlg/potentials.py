@@ -83,8 +83,8 @@ from numba.core.dispatcher import Dispatcher
 
 from .pairfunctions import (lennard_jones_shifted, lennard_jones_shifted_r2,
                             lennard_jones_smooth, lennard_jones_smooth_r2, morse)
-from .pairsum import (PairError, SumList, SumOutputs, SumTables, built_in_form,
-                      first_bad_pair, is_built_in, pair_geometry, pair_kernel)
+from .pairsum import (SumList, SumTables, bad_pair_error, built_in_form, is_built_in,
+                      pair_kernel)
 from .parallel import dynamic_schedule
 from .chunks import RowChunks, row_chunks
 
@@ -312,6 +312,7 @@ class PairPotential:
                              f'{self._type_name(ta, tb)}')
 
     def _type_name(self, ta, tb):
+        """The species pair of type indices ``ta``, ``tb``, for messages."""
         if self.species is None:
             return '(any, any)'
         return f'({self.species[ta]}, {self.species[tb]})'
@@ -499,24 +500,20 @@ class PairPotential:
         elif not isinstance(chunks, RowChunks):
             raise TypeError(f'chunks must be an ase_mlg.chunks.RowChunks '
                             f'of this list or None, got {chunks!r}')
-        nchunk = chunks.nchunk
-        threaded = nchunk > 1 and numba.get_num_threads() > 1
-        # one species' forces and energy (an MD step) take the kernel
-        # compiled without the rest
-        general = bool(virial or virials or energies or self._check_rmin
-                       or self.params.shape[0] > 1)
-        kernel = pair_kernel(self.pair, threaded, general, self.squared)
-        lst = SumList(X, types, rowptr, nbr, svec, order)
-        pot = self._sum_tables[bool(virial or virials)]
+        threaded = chunks.nchunk > 1 and numba.get_num_threads() > 1
+        # the kernel and its structures, made once per list and outputs
+        # asked for (4 µs of a 256-atom force call when made every call)
+        kernel, head, bufs = chunks.memo(
+            (self, X, types, rowptr, nbr, code, svec, order, bool(energies), bool(virials),
+             bool(virial), threaded),
+            lambda: self._structures((X, types, rowptr, nbr, svec, order), code, chunks,
+                                     energies, virials, virial, threaded))
+        part = bufs[3]  # every entry written
         out = {'forces': np.empty((n, 3))}
         e_out = np.empty(n) if energies else _NONE
         v_out = np.empty((n, 6)) if virials else _NONE6
-        part = np.empty((nchunk, 9))  # every entry written
         try:
-            fbuf, ebuf, vbuf = chunks.buffers(energies, virials)
-            sums = SumOutputs(fbuf, ebuf, vbuf, part, out['forces'], e_out, v_out)
-            # plain tuples: numba types named tuples' fields in Python (3 µs)
-            args = (tuple(lst), code, tuple(pot), tuple(chunks.arrays), tuple(sums))
+            args = (*head, (*bufs, out['forces'], e_out, v_out))
             if threaded:
                 with dynamic_schedule():
                     kernel(*args)
@@ -525,19 +522,14 @@ class PairPotential:
             chunk_sums = part.tolist()
             if any(c[8] or not (math.isfinite(c[0]) and math.isfinite(c[7]))
                    for c in chunk_sums):
-                q, why = first_bad_pair(self.pair, lst, code, pot)
-                if q < 0:
-                    raise ValueError('non-finite total energy or force '
-                                     '(overflow of the pair sums)')
-                raise self._pair_error(lst, code, q, why)
+                raise bad_pair_error(self, SumList(*head[0]), code, SumTables(*head[2]))
         except ArithmeticError as err:
             # pair functions compiled with error_model='python' raise; find
             # the pair in Python (error path only) to name it
-            q = self._find_raising_pair(lst, code)
-            if q < 0:
+            named = bad_pair_error(self, SumList(*head[0]), code, cause=err)
+            if named is None:
                 raise
-            raise self._pair_error(lst, code, q, PairError.NON_FINITE,
-                                   err) from None
+            raise named from None
         out['energy'] = math.fsum([c[0] for c in chunk_sums])
         if virial or virials:
             out['virial'] = part[:, 1:7].sum(axis=0)
@@ -547,43 +539,19 @@ class PairPotential:
             out['virials_voigt'] = v_out
         return out
 
-    def _find_raising_pair(self, lst, code):
-        for q in range(int(lst.rowptr[-1])):
-            t, u, r = pair_geometry(lst, code, q)
-            ta, tb = lst.types[t], lst.types[u]
-            if 0 < r <= self.cutoffs[ta, tb]:
-                try:
-                    self._call_pair(r, ta, tb)
-                except ArithmeticError:
-                    return q
-        return -1
-
-    def _call_pair(self, r, ta, tb):
-        """``(e, dE/dr)`` of one pair at distance ``r`` (error path)."""
-        if self.squared:
-            e, du = self.pair(r * r, self.params[ta, tb])
-            return e, du * r
-        return self.pair(r, self.params[ta, tb])
-
-    def _pair_error(self, lst, code, q, why, cause=None):
-        """The ValueError describing why pair ``q`` of ``lst`` failed
-        (``why`` a :class:`ase_mlg.pairsum.PairError`)."""
-        t, u, r = pair_geometry(lst, code, q)
-        ta, tb = lst.types[t], lst.types[u]
-        where = (f'atoms {lst.order[t]} and {lst.order[u]} at distance '
-                 f'{r:.6g} Å')
-        if why == PairError.BAD_DISTANCE:
-            return ValueError(f'{where}: distance must be > 0 (overlapping '
-                              f'atoms?)')
-        if why == PairError.BELOW_RMIN:
-            return ValueError(f'{where}: closer than rmin {self.rmin[ta, tb]} '
-                              f'Å for {self._type_name(ta, tb)}')
-        if cause is not None:
-            what = f'{type(cause).__name__}: {cause}'
-        else:
-            e, dedr = self._call_pair(r, ta, tb)
-            what = f'energy {e}, dE/dr {dedr}'
-        return ValueError(f'{where}: non-finite pair energy or force ({what})')
+    def _structures(self, lst, code, chunks, energies, virials, virial, threaded):
+        """The kernel of :meth:`sum_pairs` and what it reads and writes but
+        the per-atom outputs: ``(kernel, (lst, code, tables, chunks'
+        arrays), (fbuf, ebuf, vbuf, part))``, as plain tuples (numba types
+        named tuples' fields in Python: 3 µs a call)."""
+        # one species' forces and energy (an MD step) take the kernel
+        # compiled without the rest
+        general = bool(virial or virials or energies or self._check_rmin
+                       or self.params.shape[0] > 1)
+        kernel = pair_kernel(self.pair, threaded, general, self.squared)
+        head = (lst, code, tuple(self._sum_tables[bool(virial or virials)]),
+                tuple(chunks.arrays))
+        return kernel, head, (*chunks.buffers(energies, virials), np.empty((chunks.nchunk, 9)))
 
     def replace(self, **changes):
         """A new potential of the same kind with some constructor arguments

@@ -541,6 +541,35 @@ def test_sum_pairs_takes_row_chunks_or_none():
         pot.sum_pairs(*args, chunks=3)
 
 
+def test_sum_pairs_on_the_same_chunks_reads_each_calls_arrays():
+    # the kernel's structures are kept with the chunks between calls
+    # (RowChunks.memo): new positions or shift vectors (a new cell on the
+    # same list), other outputs asked for, another potential, each on the
+    # same chunks, give what fresh chunks give
+    atoms = fcc_ar(3, rattle=0.1)
+    pot = LennardJones(**AR)
+    atoms.calc = MLGCalculator(pot)
+    atoms.get_forces()
+    vl = atoms.calc.verlet_list
+    pl = vl.pairs
+    chunks = RowChunks(pl.rowptr, pl.nbr, 3)
+    other = LennardJones(sigma=3.0, epsilon=0.02, rc=6.0)
+    X2, svec2 = vl.X + 0.01, vl.svec * 1.01
+    for p, X, svec, energies in ((pot, vl.X, vl.svec, False), (pot, X2, vl.svec, False),
+                                 (pot, X2, svec2, False), (pot, X2, svec2, True),
+                                 (other, X2, svec2, True), (pot, vl.X, vl.svec, False)):
+        args = (X, vl.types, pl.rowptr, pl.nbr, pl.code, svec, pl.order)
+        got = p.sum_pairs(*args, energies=energies, chunks=chunks)
+        want = p.sum_pairs(*args, energies=energies,
+                           chunks=RowChunks(pl.rowptr, pl.nbr, 3))
+        assert got['energy'] == want['energy']
+        np.testing.assert_array_equal(got['forces'], want['forces'])
+        assert ('energies' in got) == energies
+        if energies:
+            np.testing.assert_array_equal(got['energies'], want['energies'])
+        assert got['forces'] is not want['forces']
+
+
 def test_first_bad_pair_names_the_pair_and_why():
     # the kernels' error vocabulary: the first flagged pair and a PairError
     X = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [5.0, 0.0, 0.0]])
