@@ -178,7 +178,8 @@ def physics(outdir):
         lambda: distribute(_md_system()), logfile=os.path.join(outdir, "md.log"), trajectory=os.path.join(outdir, "md.traj"))
     res.update(nve=nve, x_nve=x_nve, nvt=nvt, x_nvt=x_nvt, migrated=np.array(mig[0]),
                carried=np.array(mig[1]))  # rank 0's
-    res.update({f"balance_{k}": v for k, v in balance(vapour_slab()).items()})
+    if p.comm.size > 1:  # one rank takes the serial calculator's path: no partition
+        res.update({f"balance_{k}": v for k, v in balance(vapour_slab()).items()})
     if rank == 0:
         np.savez(os.path.join(outdir, "physics.npz"), **res)
 

@@ -14,7 +14,10 @@ the first list), then times ``--steps`` steps as one block of
 yes``), then the breakdown: ase-mlg's engine timings per step (halo
 exchange, rebuilds = partition + migration + ghost lists, the local list,
 the pair sum; the integrator and ASE the rest) beside LAMMPS's own
-Pair/Neigh/Comm/Modify/Other from a second, untimed run.  Peak RSS is the
+Pair/Neigh/Comm/Modify/Other from a second, untimed run.  On one rank
+ase-mlg's script takes the serial calculator's path (since session 24: no
+ghosts nor partition there), so its 1 -> 2 ranks scaling is against the
+serial code, as LAMMPS's is against its own one rank.  Peak RSS is the
 largest rank's.  ``OPENBLAS_NUM_THREADS`` is left as the user has it (a
 user launching ``mpiexec`` does not set it; until session 22 this script set
 it to 1, which hid 136 ms a BLAS product took in each rank's rebuild).  Also ase-mlg at 1 rank x 2 threads.  Medians over
@@ -48,26 +51,39 @@ def worker_mlg(natoms, steps, warm):
     atoms.calc = MLGCalculator(LennardJones(sigma=3.405, epsilon=0.0104, rc=8.5), skin=1.0)
     dyn = VelocityVerlet(atoms, 5 * units.fs)
     dyn.run(warm)
-    eng = atoms.calc._ranks
-    t0 = {k: v for k, v in eng.timings.items()}
-    c0 = dict(eng.counts)
+    calc = atoms.calc
+    one = comm.size == 1  # one rank takes the serial calculator's path: its own timings
+
+    def timings():
+        if one:
+            t = calc.timings
+            return {"check": t["check"], "list": t["list_build"], "kernel": t["kernel"]}
+        return dict(calc._ranks.timings)
+
+    def counts():
+        if one:
+            return {"rebuilds": calc.verlet_list.stats["list_builds"], "migrated": 0, "ghosts": 0}
+        return dict(calc._ranks.counts)
+
+    t0, c0 = timings(), counts()
     comm.Barrier()
     t = now()
     dyn.run(steps)
     comm.Barrier()
     wall = now() - t
-    parts = {k: 1e3 * (eng.timings[k] - t0[k]) / steps for k in t0}
+    t1, c1 = timings(), counts()
+    parts = {k: 1e3 * (t1[k] - t0[k]) / steps for k in t0}
     step_ms = 1e3 * wall / steps
     parts["integrator+ASE"] = step_ms - sum(parts.values())
     mem = comm.allgather(maxrss_mb())
-    ghosts = comm.allgather(eng.counts["ghosts"])
+    ghosts = comm.allgather(c1["ghosts"])
     owned = comm.allgather(len(atoms))
-    pairs = comm.allgather(len(eng.vl.pairs))
+    pairs = comm.allgather(len((calc.verlet_list if one else calc._ranks.vl).pairs))
     if comm.rank == 0:
         cfg = config()
         print(json.dumps({"step_ms": step_ms, "parts": parts, "mem_mb": max(mem),
-                          "rebuilds": eng.counts["rebuilds"] - c0["rebuilds"],
-                          "migrated": eng.counts["migrated"] - c0["migrated"],
+                          "rebuilds": c1["rebuilds"] - c0["rebuilds"],
+                          "migrated": c1["migrated"] - c0["migrated"],
                           "ghosts": max(ghosts), "owned": [min(owned), max(owned)],
                           "pairs": max(pairs), "natoms": natoms,
                           "layer": cfg.get("threading_layer"), "threads": cfg.get("threads")}))
