@@ -516,17 +516,21 @@ def test_kernel_is_loaded_from_cache_in_a_new_process():
     assert out.stdout.split()[-1] == '1'
 
 
+def _calculators_list():
+    """Argon atoms, LJ, and the list of an MLGCalculator after a force call."""
+    atoms = fcc_ar(3, rattle=0.1)
+    pot = LennardJones(**AR)
+    atoms.calc = MLGCalculator(pot)
+    atoms.get_forces()
+    return atoms, pot, atoms.calc.verlet_list, atoms.calc.verlet_list.pairs
+
+
 def test_sum_pairs_takes_row_chunks_or_none():
     # the calculator's entry point: chunks are a RowChunks of the list (or
     # None for row_chunks); a bare count is refused, not silently used.  On
     # the calculator's own list (one-byte image codes): a list with a code
     # per pair (int32) compiled a kernel for this test alone, 18 s of CI
-    atoms = fcc_ar(3, rattle=0.1)
-    pot = LennardJones(**AR)
-    atoms.calc = MLGCalculator(pot)
-    atoms.get_forces()
-    vl = atoms.calc.verlet_list
-    pl = vl.pairs
+    atoms, pot, vl, pl = _calculators_list()
     args = (vl.X, vl.types, pl.rowptr, pl.nbr, pl.code, vl.svec, pl.order)
     ase = atoms.copy()
     ase.calc = AseLJ(**AR)
@@ -546,12 +550,7 @@ def test_sum_pairs_on_the_same_chunks_reads_each_calls_arrays():
     # (RowChunks.memo): new positions or shift vectors (a new cell on the
     # same list), other outputs asked for, another potential, each on the
     # same chunks, give what fresh chunks give
-    atoms = fcc_ar(3, rattle=0.1)
-    pot = LennardJones(**AR)
-    atoms.calc = MLGCalculator(pot)
-    atoms.get_forces()
-    vl = atoms.calc.verlet_list
-    pl = vl.pairs
+    _, pot, vl, pl = _calculators_list()
     chunks = RowChunks(pl.rowptr, pl.nbr, 3)
     other = LennardJones(sigma=3.0, epsilon=0.02, rc=6.0)
     X2, svec2 = vl.X + 0.01, vl.svec * 1.01
