@@ -98,6 +98,33 @@ def test_stored_atoms_hold_what_the_call_reads():
     assert atoms.get_potential_energy() == pytest.approx(e, rel=1e-12)
 
 
+@pytest.mark.parametrize("edits", [(), ("positions",), ("numbers",), ("cell",), ("pbc",),
+                                   ("numbers", "pbc"), ("positions", "numbers", "cell", "pbc")])
+def test_check_state_names_what_changed_as_ase_does(edits):
+    """check_state compares numbers, cell and pbc as one key of bytes kept
+    with the stored atoms, then names the ones that changed: the names of
+    ASE's own compare_atoms, for the smallest change of each; a stored copy
+    without the key (assigned from outside) is compared field by field."""
+    from ase.calculators.calculator import compare_atoms
+    atoms = argon()
+    atoms.calc = calc = MLGCalculator(LennardJones(**AR))
+    atoms.get_potential_energy()
+    assert calc.check_state(atoms) == []
+    if "positions" in edits:
+        atoms.positions[3, 1] += 1e-9
+    if "numbers" in edits:
+        atoms.numbers[7] = 36
+    if "cell" in edits:
+        atoms.cell[2, 2] *= 1.0 + 1e-15
+    if "pbc" in edits:
+        atoms.pbc[1] = False
+    want = [k for k in ("positions", "numbers", "cell", "pbc") if k in edits]
+    assert calc.check_state(atoms) == want
+    assert set(compare_atoms(calc.atoms, atoms, tol=0.0)) == set(edits)
+    calc.atoms = calc.atoms.copy()  # no key
+    assert calc.check_state(atoms) == want
+
+
 @pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="malloc_trim is glibc's")
 def test_builds_hand_freed_memory_back_on_glibc():
     """Lists from verletlist.TRIM_ATOMS atoms trim glibc's heap after a
