@@ -168,19 +168,18 @@ class MLGCalculator(Calculator):
                 self.results["stresses"] = -res["virials_voigt"] / volume
 
     def _calculate_here(self, atoms, want, system_changes):
-        # stored atoms in place (0.5 ms at 10^5); ASE's changes (trusted) say what changed
-        atoms = self.atoms = self._stored = stored_atoms(
-            self._stored, self.atoms if atoms is None else atoms,
-            positions_only=all(name == "positions" for name in system_changes))
+        changed = {*system_changes}  # ASE's, trusted: the stored atoms in place (0.5 ms at 10^5)
+        atoms = self._stored = stored_atoms(self._stored, self.atoms if atoms is None else atoms,
+                                            positions_only=changed <= {"positions"})
+        self.atoms = None  # until the list holds them: a call failing on the way sees all next
         positions = atoms.positions  # NaN/inf fail the list's test; the grid names the atoms
         if not (positions.dtype == np.float64 and positions.flags.c_contiguous):
             positions = as_positions(positions)
         cell, vl = atoms.cell.array, self.verlet_list
-        # the last chunks' buffers go with their list: held through a rebuild
-        # they were alive beside the new ones (+12 % of the peak at 10^6 atoms)
-        self._last_chunks = None
-        vl.update(positions, cell, atoms.pbc, atoms.numbers,
-                  numbers_same="numbers" not in system_changes)
+        self._last_chunks = None  # its buffers die with its list (+12 % of the peak at 10^6)
+        vl.update(positions, cell, atoms.pbc, atoms.numbers, numbers_same="numbers" not in changed,
+                  box_same=not changed & {"cell", "pbc"})
+        self.atoms = atoms
         t0 = time.perf_counter()
         pl, chunks = vl.pairs, vl.chunks()
         res = self.potential.sum_pairs(vl.X, vl.types, pl.rowptr, pl.nbr, pl.code, vl.svec,

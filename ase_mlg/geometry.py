@@ -117,15 +117,16 @@ def stored_atoms(old, atoms, positions_only=False):
     ``check_state`` compares (numbers, positions, cell, pbc), not the
     momenta, masses or other per-atom arrays that ``atoms.copy()`` takes:
     the momenta alone were 23 MB at 10^6 atoms.  The positions keep their
-    dtype, so that complex or string positions are refused as before.  It
-    carries the :func:`state_key` of what it was given as ``mlg_key``."""
-    if positions_only and old is not None and old is not atoms \
-            and len(old.positions) == len(atoms.positions):
+    dtype (another dtype is a new copy), so that complex or string positions
+    are refused, not cast into the last call's array.  It carries the
+    :func:`state_key` of what it was given as ``mlg_key``."""
+    kind = old is not None and old is not atoms and old.positions.dtype == atoms.positions.dtype
+    if positions_only and kind and old.positions.shape == atoms.positions.shape:
         old.positions[:] = atoms.positions
         return old
     if old is atoms:
         pass
-    elif (old is None or len(old) != len(atoms) or not same(old.numbers, atoms.numbers)
+    elif (not kind or len(old) != len(atoms) or not same(old.numbers, atoms.numbers)
             or not same(old.pbc, atoms.pbc)):
         old = atoms.copy()
         for name in [k for k in old.arrays if k not in ("numbers", "positions")]:

@@ -125,6 +125,32 @@ def test_check_state_names_what_changed_as_ase_does(edits):
     assert calc.check_state(atoms) == want
 
 
+def test_a_refused_call_leaves_every_change_to_be_seen():
+    """Complex positions on a later call are refused (a new copy keeps
+    their dtype; they were cast into the last call's array, with a warning
+    and an energy), and a call refused before the list took the atoms
+    stores nothing: the next one, positions mended, sees the new cell and
+    numbers (not compared again when ASE's check found them unchanged) and
+    gives ASE's answer."""
+    from ase_mlg.potentials import lennard_jones_mixture
+    atoms = argon()
+    atoms.calc = calc = MLGCalculator(lennard_jones_mixture(
+        {"Ar": 3.405, "Kr": 3.6}, {"Ar": 0.0104, "Kr": 0.014}, rc=8.5))
+    atoms.get_potential_energy()
+    good = atoms.positions.copy()
+    atoms.numbers[:7] = 36
+    atoms.set_cell(atoms.cell * 1.01, scale_atoms=False)
+    atoms.arrays["positions"] = good + 0.5j
+    with pytest.raises(TypeError, match="positions"):
+        atoms.get_potential_energy()
+    assert calc.atoms is None
+    atoms.arrays["positions"] = good
+    fresh = atoms.copy()
+    fresh.calc = MLGCalculator(calc.potential)
+    assert atoms.get_potential_energy() == fresh.get_potential_energy()
+    np.testing.assert_array_equal(atoms.get_forces(), fresh.get_forces())
+
+
 @pytest.mark.skipif(platform.libc_ver()[0] != "glibc", reason="malloc_trim is glibc's")
 def test_builds_hand_freed_memory_back_on_glibc():
     """Lists from verletlist.TRIM_ATOMS atoms trim glibc's heap after a
