@@ -522,11 +522,11 @@ class PairPotential:
             chunk_sums = part.tolist()
             if any(c[8] or not (math.isfinite(c[0]) and math.isfinite(c[7]))
                    for c in chunk_sums):
-                raise bad_pair_error(self, SumList(*head[0]), code, SumTables(*head[2]))
+                raise bad_pair_error(self, SumList._make(head[0]), code, SumTables._make(head[2]))
         except ArithmeticError as err:
             # pair functions compiled with error_model='python' raise; find
             # the pair in Python (error path only) to name it
-            named = bad_pair_error(self, SumList(*head[0]), code, cause=err)
+            named = bad_pair_error(self, SumList._make(head[0]), code, cause=err)
             if named is None:
                 raise
             raise named from None
