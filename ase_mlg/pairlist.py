@@ -144,7 +144,7 @@ class PairList:
         holds them in atom order, the rank-order copy is dropped and
         remade from that one on request (23 MB at 10^6 atoms)."""
         if self._images is None and self._by_atom is not None:
-            self._images = np.ascontiguousarray(self._by_atom[1][self.order])
+            self._images = np.ascontiguousarray(self._by_atom[1][self.order], dtype=np.int64)
         return self._images
 
     @images.setter
@@ -187,11 +187,7 @@ class PairList:
         if not affine:
             M = _EYE
         if self._by_atom is None:  # each atom's rank and image, atom order
-            rank = np.empty(n, np.int64)
-            rank[self.order] = np.arange(n)
-            images = np.empty((n, 3), np.int64)
-            images[self.order] = self.images
-            self._by_atom = (rank, images)
+            self._by_atom = _by_atom(self.order, self.images)
             self._images = None  # remade from these where asked for
         rank, images = self._by_atom
         if use_threads("atoms", n):
@@ -426,6 +422,22 @@ def _gather_atoms(positions, rank, images, cell, ref, M, affine, X, worst):
 
 
 _gather_serial, _gather_threaded = serial_and_parallel(_gather_atoms)
+
+
+def _by_atom(order, images):
+    """Each atom's rank and image in atom order, for the gather: int32
+    where they fit (every list but one of 2^31 atoms, or of an atom 2^31
+    cells out), so that the pair list's per-atom arrays at a rebuild's peak
+    are 15 MB smaller at 10^6 atoms and a step's gather reads 16 bytes an
+    atom fewer.  An integer image is exactly the same float64 either way."""
+    n = len(order)
+    kind = np.int32 if n < 2 ** 31 else np.int64
+    rank = np.empty(n, kind)
+    rank[order] = np.arange(n, dtype=kind)
+    fits = images.size == 0 or (int(images.min()) > -2 ** 31 and int(images.max()) < 2 ** 31)
+    by_atom = np.empty((n, 3), np.int32 if fits else np.int64)
+    by_atom[order] = images
+    return rank, by_atom
 _NO_REF = np.zeros((0, 3))
 _EYE = np.eye(3)
 

@@ -236,6 +236,26 @@ def test_images_in_rank_order_remade_after_the_gather():
     np.testing.assert_array_equal(pl.images, before)
     assert pl.images.flags.c_contiguous
     np.testing.assert_array_equal(pl.positions(pos, cell), X)
+    assert pl.images.dtype == np.int64  # what the list's kernels take
+
+
+@pytest.mark.parametrize("far", [0, 2 ** 31 + 5])
+def test_the_gather_reads_images_beyond_int32(far):
+    # the gather keeps ranks and images as int32 where they fit, and int64
+    # for an atom 2^31 cells out; X is x[order] + images @ cell in the
+    # kernel's operation order either way
+    pos, cell = _liquid(5000, 35.0, 7)
+    pl = VerletList(RC, skin=SKIN).build(pos, cell, [True] * 3)
+    images = pl.images.copy()
+    images[17, 1] += far
+    pl.drop_atom_arrays()
+    pl.images = images
+    X = pl.positions(pos, cell)
+    assert pl._by_atom[1].dtype == (np.int64 if far else np.int32)
+    x, m = pos[pl.order], images.astype(np.float64)
+    want = x + (m[:, :1] * cell[0] + m[:, 1:2] * cell[1] + m[:, 2:] * cell[2])
+    np.testing.assert_array_equal(X, want)
+    np.testing.assert_array_equal(pl.images, images)
 
 
 def test_a_list_on_a_grid_carried_to_new_numbers_is_the_exact_one():
