@@ -23,7 +23,7 @@ compare.
 * ``template=None`` lists come from the exact query (:mod:`ase_mlg.query`,
   docs/design.md §6), or below :data:`ase_mlg.allpairs.MAX_WORK` tested
   images (a few hundred atoms; the default ``block`` only) from every atom
-  pair tested (:func:`ase_mlg.allpairs.half_pairs`: the same pairs, rows
+  pair tested (:func:`ase_mlg.allpairs.half_store`: the same pairs, rows
   in atom order, no grid built or followed: :meth:`VerletList.build`);
   ``template=W`` from Boris's W x W x W half template
   (:mod:`ase_mlg.template`, approximate, docs/design.md §7).
@@ -41,7 +41,7 @@ import time
 
 import numpy as np
 
-from .allpairs import half_pairs, within_reach
+from .allpairs import half_store, within_reach
 from .blocks import BlockIndex, block_for_radius
 from .geometry import Box, same
 from .pairsum import shift_vectors
@@ -347,7 +347,7 @@ class VerletList:
         a grid, holds every pair.
 
         An exact list (``template=None``) of a small system comes from
-        every atom pair tested (:func:`~ase_mlg.allpairs.half_pairs`), rows
+        every atom pair tested (:func:`~ase_mlg.allpairs.half_store`), rows
         in atom order, and no grid is built or followed for it: below a few
         hundred atoms the MLG's order buys no locality that the caches do
         not already give, and its construction was a quarter of a first
@@ -368,7 +368,7 @@ class VerletList:
             # copy was alive through the whole build: 13 MB of a rank's peak
             # at 2 ranks of 10^6 atoms)
             x = np.array(positions, dtype=np.float64, order="C")
-            pl = self._small_list(x, None, cell, pbc)
+            pl = self._small_list(x, None, cell, pbc, old)
         if pl is not None:
             # no grid: a grid kept from a larger system would be stale
             self._tracker.reset()
@@ -404,7 +404,7 @@ class VerletList:
         n = grid.natoms
         if self.width is None and self.block is None:
             # an auto template that chose the exact query, on a small system
-            pl = self._small_list(grid.positions, grid.sites.ravel(), cell, pbc)
+            pl = self._small_list(grid.positions, grid.sites.ravel(), cell, pbc, old)
             if pl is not None:
                 return pl, True
         if self.radii is not None:
@@ -432,34 +432,33 @@ class VerletList:
         return half_list(index, rat, cut=self.rlist, self_interaction=self.self_interaction,
                          pairs_per_atom=hint, reuse=old, split=split, owned=owned), True
 
-    def _small_list(self, x, sites, cell, pbc):
+    def _small_list(self, x, sites, cell, pbc, old=None):
         """The list of a small system, every atom pair tested
-        (:func:`ase_mlg.allpairs.half_pairs`: the exact query's pairs), rows
+        (:func:`ase_mlg.allpairs.half_store`: the exact query's pairs), rows
         in atom order (``sites`` None) or in the grid's site order, or None
         above its size or where a position is not finite (the grid names
         the atoms).  Where the exact query's set-up (the block index, the
         scan's room and codes) costs more than the pairs, and on a first
-        call its compilation, this path answers in one kernel."""
+        call its compilation, this path answers in one kernel.  ``old``:
+        the last list, whose length sizes the kernel's store."""
         if not np.isfinite(x).all():
             return None
         cut = ((CUT_RADII, 0.0, self.radii, None, None) if self.radii is not None
                else (CUT_SCALAR, self.rlist, None, None, None))
-        pairs = half_pairs(x, cell, pbc, cut, self.self_interaction)
-        if pairs is None:
+        # the last list of these atoms sizes the store (another system's
+        # might be 10^6 atoms')
+        room = 1.25 * len(old) if old is not None and old.natoms == len(x) else None
+        res = half_store(x, cell, pbc, cut, self.self_interaction, room=room)
+        if res is None:
             return None
-        i, j, S = pairs
-        if self.radii is None and self.rlist != self.cutoff:
-            # the pairs within the cutoff first in each row, as the scan
-            # writes them, the rows kept in order (no sort in from_pairs
-            # where the rows are the atoms)
-            D = x[j] - x[i] + S @ cell
-            first = np.lexsort((np.einsum("ij,ij->i", D, D) > self.cutoff ** 2, i))
-            i, j, S = i[first], j[first], S[first]
+        store, m = res
         if sites is None:
             order = np.arange(len(x), dtype=np.int64)
         else:
             order = np.ascontiguousarray(sites[sites >= 0], dtype=np.int64)
-        return PairList.from_pairs(order, np.zeros((len(order), 3), np.int64), i, j, S)
+        # the pairs within the cutoff first in each row, as the scan writes them
+        split = self.cutoff if self.radii is None and self.rlist != self.cutoff else None
+        return PairList.from_store(order, store, m, x, cell, split)
 
     def rebuild(self, positions, cell, pbc, numbers=None, renumber=None, owned=None):
         """:meth:`build`, and the kernel's positions (:attr:`X`,

@@ -335,8 +335,9 @@ LIST_SCENES = [
 def test_verlet_list_builds_small_systems_with_the_block_querys_pairs(
         name, atoms, cutoff, self_interaction):
     """Below MAX_WORK the Verlet list's exact builds come from
-    allpairs.half_pairs: the same set of pairs as the block query's (the
-    list with an explicit block), each unordered pair once, rows in the
+    allpairs.half_store and PairList.from_store: the same set of pairs as
+    the block query's (the list with an explicit block), each unordered
+    pair once, rows in the
     atoms' order with no grid built (one is built when asked for), and
     (with a skin) each row's pairs within the cutoff first."""
     from ase_mlg.verletlist import VerletList
