@@ -122,8 +122,7 @@ class PairList:
         code = np.empty(len(ri), dtype)
         rowptr = np.zeros(n + 1, np.int64)
         if len(ri) < 2 or (ri[1:] >= ri[:-1]).all():
-            # already in rows (a small system's list in atom order): no
-            # sort, and no sort kernel to compile on a first call (0.2 s)
+            # already in rows: no sort, and no sort kernel to compile
             np.cumsum(np.bincount(ri, minlength=n), out=rowptr[1:])
             nbr[:] = rj
             code[:] = mcode
@@ -148,13 +147,14 @@ class PairList:
         rank[order] = np.arange(n)
         rowptr = np.zeros(n + 1, np.int64)
         box = np.zeros((2, 3), np.int64)  # the shifts' range, 0 included
-        kept = _store_rows(store, m, rank, rowptr, box)
+        x = np.ascontiguousarray(x, np.float64)
+        cell = np.ascontiguousarray(cell, np.float64)
+        split2 = -1.0 if split is None else float(split) ** 2
+        kept = _store_rows(store, m, rank, x, cell, split2, box, rowptr, _NO_NBR, _NO_CODE,
+                           False)
         sdim, shifts, dtype = shift_codes(box[0], box[1])
         nbr, code = np.empty(kept, np.int32), np.empty(kept, dtype)
-        _store_fill(store, m, rank, np.ascontiguousarray(x, np.float64),
-                    np.ascontiguousarray(cell, np.float64),
-                    -1.0 if split is None else float(split) ** 2, box[0], sdim, rowptr,
-                    nbr, code)
+        _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, True)
         slo = box[0]
         zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
         return cls(order, rowptr, nbr, code, shifts, np.zeros((n, 3), np.int64), zero_code)
@@ -450,6 +450,7 @@ def _gather_atoms(positions, rank, images, cell, ref, M, affine, X, worst):
 
 
 _gather_serial, _gather_threaded = serial_and_parallel(_gather_atoms)
+_NO_NBR, _NO_CODE = np.zeros(0, np.int32), np.zeros(0, np.uint8)
 
 
 def _by_atom(order, images):
@@ -713,30 +714,28 @@ def _kept_in_half(store, k):
 
 
 @njit(cache=True)
-def _store_rows(store, m, rank, rowptr, box):
-    """:meth:`PairList.from_store`'s first pass: the kept rows' count per
-    row (``rowptr``, cumulated) and their shifts' range (``box``, widened
-    in place); returns the kept count."""
-    kept = 0
-    for k in range(m):
-        if not _kept_in_half(store, k):
-            continue
-        rowptr[rank[store[k, 0]] + 1] += 1
-        for a in range(3):
-            box[0, a] = min(box[0, a], store[k, 2 + a])
-            box[1, a] = max(box[1, a], store[k, 2 + a])
-        kept += 1
-    for t in range(rowptr.shape[0] - 1):
-        rowptr[t + 1] += rowptr[t]
-    return kept
-
-
-@njit(cache=True)
-def _store_fill(store, m, rank, x, cell, split2, slo, sdim, rowptr, nbr, code):
-    """:meth:`PairList.from_store`'s second pass: each atom's rows (one run
-    of the store) into its row of the list, those within ``sqrt(split2)``
-    first (``split2 < 0``: in the store's order); ``D = x[j] - x[i] + S @
-    cell``."""
+def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, fill):
+    """:meth:`PairList.from_store`'s two passes, one kernel (one compilation
+    on a first call: two were 0.64 s).  Without ``fill``: each row's count
+    of kept pairs (``rowptr``, cumulated) and their shifts' range
+    (``box``, widened in place); returns the kept count.  With ``fill``:
+    each atom's pairs (one run of the store) into its row, those within
+    ``sqrt(split2)`` first (``split2 < 0``: in the store's order), ``D =
+    x[j] - x[i] + S @ cell``, codes in the box ``box`` (its first row the
+    lowest shift)."""
+    if not fill:
+        kept = 0
+        for k in range(m):
+            if _kept_in_half(store, k):
+                rowptr[rank[store[k, 0]] + 1] += 1
+                for a in range(3):
+                    box[0, a] = min(box[0, a], store[k, 2 + a])
+                    box[1, a] = max(box[1, a], store[k, 2 + a])
+                kept += 1
+        for t in range(rowptr.shape[0] - 1):
+            rowptr[t + 1] += rowptr[t]
+        return kept
+    d1, d2 = box[1, 1] - box[0, 1] + 1, box[1, 2] - box[0, 2] + 1
     k0 = 0
     while k0 < m:
         i = store[k0, 0]
@@ -750,17 +749,18 @@ def _store_fill(store, m, rank, x, cell, split2, slo, sdim, rowptr, nbr, code):
                     continue
                 j, S0, S1, S2 = store[k, 1], store[k, 2], store[k, 3], store[k, 4]
                 if split2 >= 0.0:
-                    d2 = 0.0
+                    r2 = 0.0
                     for c in range(3):
                         D = (x[j, c] - x[i, c]) + (S0 * cell[0, c] + S1 * cell[1, c]
                                                    + S2 * cell[2, c])
-                        d2 += D * D
-                    if (d2 > split2) != (part == 1):
+                        r2 += D * D
+                    if (r2 > split2) != (part == 1):
                         continue
                 nbr[w] = rank[j]
-                code[w] = ((S0 - slo[0]) * sdim[1] + S1 - slo[1]) * sdim[2] + S2 - slo[2]
+                code[w] = ((S0 - box[0, 0]) * d1 + S1 - box[0, 1]) * d2 + S2 - box[0, 2]
                 w += 1
         k0 = k1
+    return w
 
 
 @njit(cache=True)
