@@ -11,7 +11,9 @@ in three compiled calls, after the cell's inverse (computed in Python
 once per cell: :func:`_frame_of`): the fractional coordinates
 (:func:`_reach`); for every pair of atoms ``i <= j`` the cell shifts ``S``
 that can bring them within the cutoff, each image tested
-(:func:`_half_pairs`); the kept pairs at both atoms (:func:`_full`).
+(:func:`_half_pairs`: where a cutoff spans less than half of every
+periodic cell height, as in MD's cells, the nearest image alone, tested
+without a branch on the data); the kept pairs at both atoms (:func:`_full`).
 Three kernels driven from Python, not one calling the others, because
 numba optimizes a kernel with its callees' code linked in: each level
 compiled the levels below once more (a first ``neighbor_list`` of 108
@@ -70,9 +72,9 @@ import numpy as np
 from .jit import njit
 
 from .geometry import Box, as_pbc
-from .pairlist import PairOutput, ase_vector, put_pair
+from .pairlist import PairList, PairOutput, ase_vector, put_pair, shift_codes
 
-__all__ = ["all_pairs", "half_store", "within_reach", "MAX_WORK"]
+__all__ = ["all_pairs", "half_store", "store_list", "within_reach", "MAX_WORK"]
 
 #: Above this many tested images (atom pairs ``n (n + 1) / 2`` times the
 #: images a pair spans, ``prod(2 rc / h_a + 1)`` over periodic axes:
@@ -85,12 +87,22 @@ __all__ = ["all_pairs", "half_store", "within_reach", "MAX_WORK"]
 #: atoms of a metal at 5-6 Å on this path.
 MAX_WORK = 6e5
 
+#: From this many atoms :func:`_half_pairs` takes the partners
+#: :func:`_screen` leaves (where each pair has one image to test).  The
+#: screen pays from about 100 atoms (``half_store``, one thread, AMD Zen 3:
+#: fcc Cu at 5 Å 22 -> 24 µs at 32 atoms, 101 -> 81 at 108, 543 -> 247 at
+#: 256, 2,041 -> 741 at 500; argon at 9.5 Å 574 -> 348 at 256), but its
+#: compilation (0.3-0.5 s, once per environment) takes some 20,000 calls
+#: of 108 atoms to repay, and about 1,500 of 256.
+SCREEN_ATOMS = 200
+
 # a periodic atom further than this many cells out goes to the large path:
 # the image interval's round-off grows with the shift (docs/design.md §6)
 _FAR_CELLS = 1024.0
 _EMPTY_F = np.zeros(0)
 _EMPTY_I = np.zeros(0, np.int64)
 _EMPTY_TABLE = np.zeros((1, 1))
+_NO_NBR, _NO_CODE = np.zeros(0, np.int32), np.zeros(0, np.uint8)
 
 
 @njit(cache=True, no_cpython_wrapper=True)
@@ -180,11 +192,12 @@ def _shifts(df, reach, periodic):
 
 @njit(cache=True)
 def _reach(pos, frame, pbc, mode, cut, radii, table, max_work, f, pad):
-    """Write the fractional coordinates ``f`` of the atoms in the cell of
-    ``frame`` (:func:`_frame`) and the round-off ``pad`` of each axis's
-    shift interval (fractions of a cell); False where the input is the
-    large path's (atoms far out, too many images or too much work, a cell
-    whose inverse is not exact enough).  The arrays come from the caller:
+    """Write the fractional coordinates ``f`` (float64[3, N], by axis) of
+    the atoms in the cell of ``frame`` (:func:`_frame`), the round-off
+    ``pad[:3]`` of each axis's shift interval (fractions of a cell) and
+    the largest cutoff ``pad[3]`` (Å); False where the input is the large
+    path's (atoms far out, too many images or too much work, a cell whose
+    inverse is not exact enough).  The arrays come from the caller:
     numba's ``np.empty`` compiled for 0.2 s of a first call."""
     n = pos.shape[0]
     rcmax = cut
@@ -207,8 +220,8 @@ def _reach(pos, frame, pbc, mode, cut, radii, table, max_work, f, pad):
     for k in range(n):
         for a in range(3):
             scale = max(scale, abs(pos[k, a]))
-            f[k, a] = pos[k, 0] * frame[3, a] + pos[k, 1] * frame[4, a] + pos[k, 2] * frame[5, a]
-            far |= pbc[a] and not abs(f[k, a]) <= _FAR_CELLS
+            f[a, k] = pos[k, 0] * frame[3, a] + pos[k, 1] * frame[4, a] + pos[k, 2] * frame[5, a]
+            far |= pbc[a] and not abs(f[a, k]) <= _FAR_CELLS
     if (far or scale > 1e8 * max(rcmax, 1.0) or not images < 1e6
             or not 0.5 * n * (n + 1) * images <= max_work or not frame[9, 0] < 1e-12):
         return False
@@ -218,51 +231,60 @@ def _reach(pos, frame, pbc, mode, cut, radii, table, max_work, f, pad):
     for a in range(3):
         pad[a] = (1e-9 * (scale + rcmax) * frame[6, a] + 8.0 * max(frame[9, 0], 1e-16)
                   * (2.0 * _FAR_CELLS + rcmax * frame[6, a] + 2.0))
+    pad[3] = rcmax
     return True
 
 
 @njit(cache=True)
-def _half_pairs(pos, frame, pad, f, pbc, cutoff, self_interaction, i0, m, store):
+def _half_pairs(pos, frame, pad, f, pbc, cutoff, self_interaction, i0, m, store, cand, cptr):
     """The pairs ``i <= j`` within the cutoff (``(mode, cut, radii,
     types, table)``: :func:`_pair_cutoff`), rows ``i0...`` on, in (i, j, S) order,
     from entry ``m`` of ``store`` (rows ``i, j, S``), in the cell of
-    ``frame`` with :func:`_reach`'s ``f`` and ``pad``.  Returns ``(m,
-    i)``: rows before ``i`` are done (``i < n`` when row ``i`` ran out of
-    room: grow the store and call again from it).  An atom's pairs with
-    its own images (``i == j``) come both as S and -S (the full list
-    writes each once; a half list keeps one:
-    :meth:`~ase_mlg.pairlist.PairList.from_store`)."""
+    ``frame`` with :func:`_reach`'s ``f`` and ``pad``; the partners ``j``
+    of row ``i`` are ``cand[cptr[i]:cptr[i + 1]]`` where ``cptr`` is not
+    empty (:func:`_screen`), else every ``j >= i``.  Returns ``(m, i)``:
+    rows before ``i`` are done (``i < n`` when row ``i`` ran out of room:
+    grow the store and call again from it).  An atom's pairs with its own images (``i == j``) come both as S
+    and -S (the full list writes each once; a half list keeps one:
+    :func:`store_list`)."""
     n = pos.shape[0]
     full = frame[0:3]
     h0, h1, h2 = frame[6, 0], frame[6, 1], frame[6, 2]
     t0, t1, t2 = pad[0], pad[1], pad[2]
     p0, p1, p2 = pbc[0], pbc[1], pbc[2]
+    rcmax = pad[3]
+    # Where no periodic axis's interval at the largest cutoff spans half a
+    # cell, a pair can be within its cutoff at one image only, the nearest
+    # (rint), and only that one is tested: the images the intervals give
+    # but that one are all beyond the cutoff.  Every test then decides
+    # without a branch on the data: in MD the tests decide at random, and
+    # their mispredictions were half of a rebuild at 256 atoms.
+    one = ((not p0 or 2.0 * (rcmax * h0 + t0) < 1.0) and (not p1 or 2.0 * (rcmax * h1 + t1) < 1.0)
+           and (not p2 or 2.0 * (rcmax * h2 + t2) < 1.0))
+    screened = cptr.shape[0] > 0
     for i in range(i0, n):
         start = m
-        fi0, fi1, fi2 = f[i, 0], f[i, 1], f[i, 2]
-        for j in range(i, n):
+        fi0, fi1, fi2 = f[0, i], f[1, i], f[2, i]
+        a0, a1 = (cptr[i], cptr[i + 1]) if screened else (i, n)
+        for a in range(a0, a1):
+            j = cand[a] if screened else a
             rc = _pair_cutoff(cutoff, i, j)
-            if not rc > 0.0:
-                continue
-            lo0, hi0 = _shifts(f[j, 0] - fi0, rc * h0 + t0, p0)
-            lo1, hi1 = _shifts(f[j, 1] - fi1, rc * h1 + t1, p1)
-            lo2, hi2 = _shifts(f[j, 2] - fi2, rc * h2 + t2, p2)
-            # a cheap reject before the square root: sqrt(d2) < rc implies
-            # d2 < rc^2 (1 + 1e-12) whatever the rounding
-            rc2 = rc * rc * (1.0 + 1e-12)
+            if one:
+                lo0 = hi0 = -int(np.rint(f[0, j] - fi0)) if p0 else 0
+                lo1 = hi1 = -int(np.rint(f[1, j] - fi1)) if p1 else 0
+                lo2 = hi2 = -int(np.rint(f[2, j] - fi2)) if p2 else 0
+            else:
+                if not rc > 0.0:
+                    continue
+                lo0, hi0 = _shifts(f[0, j] - fi0, rc * h0 + t0, p0)
+                lo1, hi1 = _shifts(f[1, j] - fi1, rc * h1 + t1, p1)
+                lo2, hi2 = _shifts(f[2, j] - fi2, rc * h2 + t2, p2)
             for S0 in range(lo0, hi0 + 1):
                 for S1 in range(lo1, hi1 + 1):
                     for S2 in range(lo2, hi2 + 1):
-                        if i == j and S0 == 0 and S1 == 0 and S2 == 0 \
-                                and not self_interaction:
-                            continue
                         Dx, Dy, Dz = ase_vector(pos, j, i, S0, S1, S2, full)
-                        d2 = Dx * Dx + Dy * Dy + Dz * Dz
-                        if d2 >= rc2:
-                            continue
-                        d = np.sqrt(d2)
-                        if not d < rc:
-                            continue
+                        # every image written, kept or not, the next one
+                        # written over it
                         if m == store.shape[0]:
                             return start, i
                         store[m, 0] = i
@@ -270,8 +292,57 @@ def _half_pairs(pos, frame, pad, f, pbc, cutoff, self_interaction, i0, m, store)
                         store[m, 2] = S0
                         store[m, 3] = S1
                         store[m, 4] = S2
-                        m += 1
+                        m += ((np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz) < rc)
+                              & ((i != j) | (S0 != 0) | (S1 != 0) | (S2 != 0) | self_interaction))
     return m, n
+
+
+@njit(cache=True)
+def _screen(f, frame, pad, pbc, self_interaction, flags, cand, cptr):
+    """The partners that :func:`_half_pairs` tests, screened, where each
+    pair has one image to test (``_half_pairs``' ``one``): row ``i``'s
+    are ``cand[cptr[i]:cptr[i + 1]]``, the ``j >= i`` (``j > i`` without
+    ``self_interaction``) within the largest cutoff ``pad[3]`` (Å, padded
+    by 1e-12 relative) at their nearest image, in order.  ``f`` float64[6,
+    N]: :func:`_reach`'s fractional coordinates by axis, then the
+    Cartesian ones (Å); ``flags`` int64[N] of scratch; ``cand`` int64[N (N
+    + 1) / 2].
+
+    Each partner's test is a superset of ``_half_pairs``' own (the image
+    it tests, within the cutoff), computed for a whole row without a
+    branch and with the coordinates by axis, so that LLVM vectorises it
+    (4 pairs an instruction with AVX2).  In MD the tests decide at random:
+    their branches' mispredictions were half of a rebuild at 256 atoms,
+    and the screen takes the branches off every pair beyond the cutoff.
+    A kernel of its own, called only where it pays (:data:`SCREEN_ATOMS`):
+    it compiles for about half a second."""
+    n = f.shape[1]
+    full = frame[0:3]
+    q0, q1, q2 = 1.0 if pbc[0] else 0.0, 1.0 if pbc[1] else 0.0, 1.0 if pbc[2] else 0.0
+    rcmax = pad[3]
+    r0, r1, r2 = rcmax * frame[6, 0] + pad[0], rcmax * frame[6, 1] + pad[1], rcmax * frame[6, 2] + pad[2]
+    rc2 = rcmax * rcmax * (1.0 + 1e-12)
+    c00, c01, c02 = full[0, 0], full[0, 1], full[0, 2]
+    c10, c11, c12 = full[1, 0], full[1, 1], full[1, 2]
+    c20, c21, c22 = full[2, 0], full[2, 1], full[2, 2]
+    f0, f1, f2, x0, x1, x2 = f[0], f[1], f[2], f[3], f[4], f[5]
+    c = 0
+    cptr[0] = 0
+    for i in range(n):
+        fi0, fi1, fi2, xi0, xi1, xi2 = f0[i], f1[i], f2[i], x0[i], x1[i], x2[i]
+        for j in range(i, n):
+            g0, g1, g2 = f0[j] - fi0, f1[j] - fi1, f2[j] - fi2
+            S0, S1, S2 = -np.rint(g0) * q0, -np.rint(g1) * q1, -np.rint(g2) * q2
+            Dx = (x0[j] - xi0) + (S0 * c00 + S1 * c10 + S2 * c20)
+            Dy = (x1[j] - xi1) + (S0 * c01 + S1 * c11 + S2 * c21)
+            Dz = (x2[j] - xi2) + (S0 * c02 + S1 * c12 + S2 * c22)
+            flags[j] = ((abs(g0 + S0) <= r0) & (abs(g1 + S1) <= r1) & (abs(g2 + S2) <= r2)
+                        & (Dx * Dx + Dy * Dy + Dz * Dz < rc2))
+        for j in range(i + (not self_interaction), n):
+            kept = flags[j]
+            cand[c] = j
+            c += kept
+        cptr[i + 1] = c
 
 
 @njit(cache=True)
@@ -391,7 +462,7 @@ def half_store(positions, cell, pbc, pair_cutoff, self_interaction=False, room=N
     within the cutoff with ``i <= j``, ordered by (i, j, S), ``D = x[j] -
     x[i] + S @ cell``; an atom's pairs with its own images come as both S
     and -S (a half list keeps the lexicographically positive one:
-    :meth:`~ase_mlg.pairlist.PairList.from_store`).  None where the large
+    :func:`store_list`).  None where the large
     path must answer.  ``room``: the rows expected (the store grows in
     Python when they are more: a growth cost a rebuild of 500 argon atoms
     at 9.5 Å 0.9 ms).  Parameters, pairs and errors are those of
@@ -406,6 +477,124 @@ def half_store(positions, cell, pbc, pair_cutoff, self_interaction=False, room=N
         return None
     _, store, m = res
     return store, m
+
+
+def store_list(order, store, m, x, cell, split=None):
+    """The :class:`~ase_mlg.pairlist.PairList` of a small system's
+    half-list rows (:func:`half_store`: ``store[:m]`` the rows ``(i,
+    j, S0, S1, S2)`` ordered by (i, j, S), an atom's pairs with its own
+    images as both S and -S), rows in ``order`` (the atom of each
+    rank), every image 0.  Each pair once (of an atom and its own
+    image, the lexicographically positive S), and with ``split`` (Å)
+    each row's pairs within it at the positions ``x`` (cell ``cell``)
+    first, each part in the store's order.  Two compiled passes: the
+    numpy passes they replace (a mask, the pair vectors, a sort, the
+    codes) were 5 of a rebuild's 8.3 ms on 500 argon atoms at 9.5 Å."""
+    n = len(order)
+    rank = np.empty(n, np.int64)
+    rank[order] = np.arange(n)
+    rowptr = np.zeros(n + 1, np.int64)
+    box = np.zeros((2, 3), np.int64)  # the shifts' range, 0 included
+    x = np.ascontiguousarray(x, np.float64)
+    cell = np.ascontiguousarray(cell, np.float64)
+    split2 = -1.0 if split is None else float(split) ** 2
+    near = np.empty(m, np.bool_)
+    kept = _store_rows(store, m, rank, x, cell, split2, box, rowptr, _NO_NBR, _NO_CODE,
+                       near, False)
+    sdim, shifts, dtype = shift_codes(box[0], box[1])
+    nbr, code = np.empty(kept, np.int32), np.empty(kept, dtype)
+    _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, near, True)
+    slo = box[0]
+    zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
+    return PairList(order, rowptr, nbr, code, shifts, np.zeros((n, 3), np.int64), zero_code)
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def _kept_in_half(store, k):
+    """Whether store row ``k`` is in a half list: every pair of two atoms,
+    and a pair of an atom and its own image once, with ``S``
+    lexicographically >= 0 (``S = 0``: the self-interaction)."""
+    if store[k, 0] != store[k, 1]:
+        return True
+    s0, s1, s2 = store[k, 2], store[k, 3], store[k, 4]
+    return s0 > 0 or (s0 == 0 and (s1 > 0 or (s1 == 0 and s2 >= 0)))
+
+
+@njit(cache=True)
+def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, near, fill):
+    """:func:`store_list`'s two passes, one kernel (one compilation
+    on a first call: two were 0.64 s).  Without ``fill``: each row's count
+    of kept pairs (``rowptr``, cumulated), their shifts' range (``box``,
+    widened in place) and whether each kept pair is within
+    ``sqrt(split2)`` (``near``, bool[m]; False throughout for ``split2 <
+    0``); returns the kept count.  With ``fill``: each atom's pairs (one
+    run of the store) into its row, the ``near`` ones first, each part in
+    the store's order, codes in the box ``box`` (its first row the lowest
+    shift); returns ``m``.  No branch depends on a pair's distance: in MD
+    the split decides at random, and those branches' mispredictions were a
+    third of these passes."""
+    if not fill:
+        kept = 0
+        # the box in registers: rowptr's writes could alias its array
+        lo0, lo1, lo2 = box[0, 0], box[0, 1], box[0, 2]
+        hi0, hi1, hi2 = box[1, 0], box[1, 1], box[1, 2]
+        k0 = 0
+        while k0 < m:
+            i = store[k0, 0]
+            count = 0
+            k = k0
+            while k < m and store[k, 0] == i:
+                keep = _kept_in_half(store, k)
+                near[k] = keep and split2 >= 0.0 and _within(store, k, x, cell, split2)
+                if keep:
+                    lo0, hi0 = min(lo0, store[k, 2]), max(hi0, store[k, 2])
+                    lo1, hi1 = min(lo1, store[k, 3]), max(hi1, store[k, 3])
+                    lo2, hi2 = min(lo2, store[k, 4]), max(hi2, store[k, 4])
+                    count += 1
+                k += 1
+            rowptr[rank[i] + 1] = count
+            kept += count
+            k0 = k
+        box[0, 0], box[0, 1], box[0, 2] = lo0, lo1, lo2
+        box[1, 0], box[1, 1], box[1, 2] = hi0, hi1, hi2
+        for t in range(rowptr.shape[0] - 1):
+            rowptr[t + 1] += rowptr[t]
+        return kept
+    d1, d2 = box[1, 1] - box[0, 1] + 1, box[1, 2] - box[0, 2] + 1
+    k0 = 0
+    while k0 < m:
+        i = store[k0, 0]
+        k1 = k0
+        inner = 0
+        while k1 < m and store[k1, 0] == i:
+            inner += near[k1]
+            k1 += 1
+        # the near pairs from the row's start, the others after them
+        w_in = rowptr[rank[i]]
+        w_out = w_in + inner
+        for k in range(k0, k1):
+            if not _kept_in_half(store, k):
+                continue
+            j, S0, S1, S2 = store[k, 1], store[k, 2], store[k, 3], store[k, 4]
+            w = w_in if near[k] else w_out
+            w_in += near[k]
+            w_out += not near[k]
+            nbr[w] = rank[j]
+            code[w] = ((S0 - box[0, 0]) * d1 + S1 - box[0, 1]) * d2 + S2 - box[0, 2]
+        k0 = k1
+    return m
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def _within(store, k, x, cell, split2):
+    """Whether store row ``k``'s pair is within ``sqrt(split2)`` (Å) at the
+    positions ``x`` in ``cell``."""
+    i, j, S0, S1, S2 = store[k, 0], store[k, 1], store[k, 2], store[k, 3], store[k, 4]
+    r2 = 0.0
+    for c in range(3):
+        D = (x[j, c] - x[i, c]) + (S0 * cell[0, c] + S1 * cell[1, c] + S2 * cell[2, c])
+        r2 += D * D
+    return not r2 > split2
 
 
 def _arguments(cell, pbc, pair_cutoff, self_interaction):
@@ -452,20 +641,36 @@ def _call(positions, args, max_work, room=None):
         if frame is None:
             return None
     mode, cut, radii, _, table = cutoff
-    f, pad = np.empty((n, 3)), np.empty(3)
+    f, pad = np.empty((3, n)), np.empty(4)
     if not _reach(positions, frame, pbc, mode, cut, radii, table, max_work, f, pad):
         return None
     # room for 32 pairs an atom (a metal or an ML model's 5-6 Å in one
     # go) unless the caller knows better, doubled here, in Python, when a
     # row runs out (module doc: why no kernel drives the loop)
     store = np.empty((32 * n + 64 if room is None else int(room) + 64, 5), np.int64)
+    cand, cptr = _screened(positions, frame, pad, f, pbc, self_interaction)
     m = i = 0
     while True:
         m, i = _half_pairs(positions, frame, pad, f, pbc, cutoff, self_interaction, i, m,
-                           store)
+                           store, cand, cptr)
         if i == n:
             return frame, store, m
         store = np.concatenate((store, np.empty_like(store)))
+
+
+def _screened(positions, frame, pad, f, pbc, self_interaction):
+    """:func:`_screen`'s partners ``(cand, cptr)`` where it runs: at
+    :data:`SCREEN_ATOMS` atoms and more, where every pair has one image to
+    test; else two empty arrays (:func:`_half_pairs` tests every pair)."""
+    n = len(positions)
+    h, rcmax = frame[6], pad[3]
+    if n < SCREEN_ATOMS or not all(not p or 2.0 * (rcmax * h[a] + pad[a]) < 1.0
+                                   for a, p in enumerate(pbc.tolist())):
+        return _EMPTY_I, _EMPTY_I
+    fx = np.concatenate((f, positions.T))
+    cand, cptr = np.empty(n * (n + 1) // 2, np.int64), np.empty(n + 1, np.int64)
+    _screen(fx, frame, pad, pbc, self_interaction, np.empty(n, np.int64), cand, cptr)
+    return cand, cptr
 
 
 _FRAMES = {}

@@ -130,35 +130,6 @@ class PairList:
             _rows_from_pairs(ri, rj, mcode, n, nbr, code, rowptr)
         return cls(order, rowptr, nbr, code, shifts, images, zero_code)
 
-    @classmethod
-    def from_store(cls, order, store, m, x, cell, split=None):
-        """The list of a small system's half-list rows
-        (:func:`ase_mlg.allpairs.half_store`: ``store[:m]`` the rows ``(i,
-        j, S0, S1, S2)`` ordered by (i, j, S), an atom's pairs with its own
-        images as both S and -S), rows in ``order`` (the atom of each
-        rank), every image 0.  Each pair once (of an atom and its own
-        image, the lexicographically positive S), and with ``split`` (Å)
-        each row's pairs within it at the positions ``x`` (cell ``cell``)
-        first, each part in the store's order.  Two compiled passes: the
-        numpy passes they replace (a mask, the pair vectors, a sort, the
-        codes) were 5 of a rebuild's 8.3 ms on 500 argon atoms at 9.5 Å."""
-        n = len(order)
-        rank = np.empty(n, np.int64)
-        rank[order] = np.arange(n)
-        rowptr = np.zeros(n + 1, np.int64)
-        box = np.zeros((2, 3), np.int64)  # the shifts' range, 0 included
-        x = np.ascontiguousarray(x, np.float64)
-        cell = np.ascontiguousarray(cell, np.float64)
-        split2 = -1.0 if split is None else float(split) ** 2
-        kept = _store_rows(store, m, rank, x, cell, split2, box, rowptr, _NO_NBR, _NO_CODE,
-                           False)
-        sdim, shifts, dtype = shift_codes(box[0], box[1])
-        nbr, code = np.empty(kept, np.int32), np.empty(kept, dtype)
-        _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, True)
-        slo = box[0]
-        zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
-        return cls(order, rowptr, nbr, code, shifts, np.zeros((n, 3), np.int64), zero_code)
-
     def __len__(self):
         return int(self.rowptr[-1])
 
@@ -450,7 +421,6 @@ def _gather_atoms(positions, rank, images, cell, ref, M, affine, X, worst):
 
 
 _gather_serial, _gather_threaded = serial_and_parallel(_gather_atoms)
-_NO_NBR, _NO_CODE = np.zeros(0, np.int32), np.zeros(0, np.uint8)
 
 
 def _by_atom(order, images):
@@ -700,67 +670,6 @@ def shift_codes(slo, shi):
     shifts = np.ascontiguousarray(k + slo, dtype=np.int64)
     dtype = np.uint8 if len(shifts) <= 256 else np.int32
     return sdim, shifts, dtype
-
-
-@njit(cache=True, no_cpython_wrapper=True)
-def _kept_in_half(store, k):
-    """Whether store row ``k`` is in a half list: every pair of two atoms,
-    and a pair of an atom and its own image once, with ``S``
-    lexicographically >= 0 (``S = 0``: the self-interaction)."""
-    if store[k, 0] != store[k, 1]:
-        return True
-    s0, s1, s2 = store[k, 2], store[k, 3], store[k, 4]
-    return s0 > 0 or (s0 == 0 and (s1 > 0 or (s1 == 0 and s2 >= 0)))
-
-
-@njit(cache=True)
-def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, fill):
-    """:meth:`PairList.from_store`'s two passes, one kernel (one compilation
-    on a first call: two were 0.64 s).  Without ``fill``: each row's count
-    of kept pairs (``rowptr``, cumulated) and their shifts' range
-    (``box``, widened in place); returns the kept count.  With ``fill``:
-    each atom's pairs (one run of the store) into its row, those within
-    ``sqrt(split2)`` first (``split2 < 0``: in the store's order), ``D =
-    x[j] - x[i] + S @ cell``, codes in the box ``box`` (its first row the
-    lowest shift)."""
-    if not fill:
-        kept = 0
-        for k in range(m):
-            if _kept_in_half(store, k):
-                rowptr[rank[store[k, 0]] + 1] += 1
-                for a in range(3):
-                    box[0, a] = min(box[0, a], store[k, 2 + a])
-                    box[1, a] = max(box[1, a], store[k, 2 + a])
-                kept += 1
-        for t in range(rowptr.shape[0] - 1):
-            rowptr[t + 1] += rowptr[t]
-        return kept
-    d1, d2 = box[1, 1] - box[0, 1] + 1, box[1, 2] - box[0, 2] + 1
-    k0 = 0
-    while k0 < m:
-        i = store[k0, 0]
-        k1 = k0
-        while k1 < m and store[k1, 0] == i:
-            k1 += 1
-        w = rowptr[rank[i]]
-        for part in range(2 if split2 >= 0.0 else 1):
-            for k in range(k0, k1):
-                if not _kept_in_half(store, k):
-                    continue
-                j, S0, S1, S2 = store[k, 1], store[k, 2], store[k, 3], store[k, 4]
-                if split2 >= 0.0:
-                    r2 = 0.0
-                    for c in range(3):
-                        D = (x[j, c] - x[i, c]) + (S0 * cell[0, c] + S1 * cell[1, c]
-                                                   + S2 * cell[2, c])
-                        r2 += D * D
-                    if (r2 > split2) != (part == 1):
-                        continue
-                nbr[w] = rank[j]
-                code[w] = ((S0 - box[0, 0]) * d1 + S1 - box[0, 1]) * d2 + S2 - box[0, 2]
-                w += 1
-        k0 = k1
-    return w
 
 
 @njit(cache=True)

@@ -41,12 +41,11 @@ import time
 
 import numpy as np
 
-from .allpairs import half_store, within_reach
+from .allpairs import half_store, store_list, within_reach
 from .blocks import BlockIndex, block_for_radius
 from .geometry import Box, same
 from .pairsum import shift_vectors
 from .chunks import row_chunks
-from .pairlist import PairList
 from .query import CUT_RADII, CUT_SCALAR, half_list, pair_list
 from .template import template_pairs
 from .tracker import GridTracker
@@ -458,7 +457,7 @@ class VerletList:
             order = np.ascontiguousarray(sites[sites >= 0], dtype=np.int64)
         # the pairs within the cutoff first in each row, as the scan writes them
         split = self.cutoff if self.radii is None and self.rlist != self.cutoff else None
-        return PairList.from_store(order, store, m, x, cell, split)
+        return store_list(order, store, m, x, cell, split)
 
     def rebuild(self, positions, cell, pbc, numbers=None, renumber=None, owned=None):
         """:meth:`build`, and the kernel's positions (:attr:`X`,

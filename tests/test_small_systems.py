@@ -287,6 +287,43 @@ def test_small_path_is_the_block_query_on_random_scenes(scene):
     assert_same_list(ours, block_query(atoms, cutoff, self_interaction=self_interaction))
 
 
+@pytest.mark.parametrize("pbc", [(True, True, True), (True, False, True), (False, False, False)])
+@pytest.mark.parametrize("kind", ["scalar", "radii", "dict"])
+@pytest.mark.parametrize("self_interaction", [False, True])
+def test_one_image_rows_are_the_block_query(pbc, kind, self_interaction):
+    """Cutoffs under half of every cell height: each pair has one
+    candidate image, and the kernel tests it without branching on the data
+    (allpairs._half_pairs, its vectorised test at the largest cutoff, then
+    each candidate's own).  60 atoms of a sheared cell, some outside it,
+    atoms at the largest cutoff's distance and a duplicate position."""
+    rng = np.random.default_rng(11)
+    cell = np.array([[14.0, 0.0, 0.0], [3.0, 13.0, 0.0], [-2.0, 1.5, 15.0]])
+    frac = rng.uniform(-0.3, 1.3, (60, 3))
+    frac[-1] = frac[0]
+    atoms = ase.Atoms(numbers=rng.choice([1, 6, 8], 60), scaled_positions=frac, cell=cell,
+                      pbc=pbc)
+    atoms.positions[1] = atoms.positions[2] + [4.0, 0.0, 0.0]  # exactly at 4 Å
+    if kind == "scalar":
+        cutoff = 4.0
+    elif kind == "radii":
+        cutoff = list(rng.uniform(0.5, 2.5, 60))
+    else:
+        cutoff = {("H", "C"): 4.0, (8, 8): 5.0, (6, 6): 2.0, ("O", "H"): 3.5}
+    pos = np.ascontiguousarray(atoms.positions)
+    mode, cut, radii, types, table, _ = nl._parse_cutoff(cutoff, 60, atoms.numbers)
+    store, m = allpairs.half_store(pos, atoms.cell.array, atoms.pbc,
+                                   (mode, cut, radii, types, table), self_interaction)
+    rows = {tuple(r) for r in store[:m].tolist()}
+    assert len(rows) == m
+    ours = small_path(atoms, cutoff, self_interaction)
+    assert_ordered(ours)
+    large = block_query(atoms, cutoff, self_interaction=self_interaction)
+    assert_same_list(ours, large)
+    i, j, _, _, S = large
+    half = {(a, b, *s) for a, b, s in zip(i.tolist(), j.tolist(), S.tolist()) if a <= b}
+    assert rows == half
+
+
 def test_mirror_entries_match_the_entry():
     """Each pair at both atoms: (j, i, -S) beside (i, j, S), same d."""
     atoms = _triclinic(pbc=(True, False, True))
