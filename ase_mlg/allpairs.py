@@ -11,9 +11,9 @@ in three compiled calls, after the cell's inverse (computed in Python
 once per cell: :func:`_frame_of`): the fractional coordinates
 (:func:`_reach`); for every pair of atoms ``i <= j`` the cell shifts ``S``
 that can bring them within the cutoff, each image tested
-(:func:`_half_pairs`: where a cutoff spans less than half of every
-periodic cell height, as in MD's cells, the nearest image alone, tested
-without a branch on the data); the kept pairs at both atoms (:func:`_full`).
+(:func:`_half_pairs`; from :data:`SCREEN_ATOMS` atoms, where a cutoff
+spans less than half of every periodic cell height, as in MD's cells,
+only the partners a vectorised screen leaves: :func:`_screen`); the kept pairs at both atoms (:func:`_full`).
 Three kernels driven from Python, not one calling the others, because
 numba optimizes a kernel with its callees' code linked in: each level
 compiled the levels below once more (a first ``neighbor_list`` of 108
@@ -244,23 +244,14 @@ def _half_pairs(pos, frame, pad, f, pbc, cutoff, self_interaction, i0, m, store,
     of row ``i`` are ``cand[cptr[i]:cptr[i + 1]]`` where ``cptr`` is not
     empty (:func:`_screen`), else every ``j >= i``.  Returns ``(m, i)``:
     rows before ``i`` are done (``i < n`` when row ``i`` ran out of room:
-    grow the store and call again from it).  An atom's pairs with its own images (``i == j``) come both as S
-    and -S (the full list writes each once; a half list keeps one:
-    :func:`store_list`)."""
+    grow the store and call again from it).  An atom's pairs with its own
+    images (``i == j``) come both as S and -S (the full list writes each
+    once; a half list keeps one: :func:`store_list`)."""
     n = pos.shape[0]
     full = frame[0:3]
     h0, h1, h2 = frame[6, 0], frame[6, 1], frame[6, 2]
     t0, t1, t2 = pad[0], pad[1], pad[2]
     p0, p1, p2 = pbc[0], pbc[1], pbc[2]
-    rcmax = pad[3]
-    # Where no periodic axis's interval at the largest cutoff spans half a
-    # cell, a pair can be within its cutoff at one image only, the nearest
-    # (rint), and only that one is tested: the images the intervals give
-    # but that one are all beyond the cutoff.  Every test then decides
-    # without a branch on the data: in MD the tests decide at random, and
-    # their mispredictions were half of a rebuild at 256 atoms.
-    one = ((not p0 or 2.0 * (rcmax * h0 + t0) < 1.0) and (not p1 or 2.0 * (rcmax * h1 + t1) < 1.0)
-           and (not p2 or 2.0 * (rcmax * h2 + t2) < 1.0))
     screened = cptr.shape[0] > 0
     for i in range(i0, n):
         start = m
@@ -269,22 +260,29 @@ def _half_pairs(pos, frame, pad, f, pbc, cutoff, self_interaction, i0, m, store,
         for a in range(a0, a1):
             j = cand[a] if screened else a
             rc = _pair_cutoff(cutoff, i, j)
-            if one:
+            if not rc > 0.0:
+                continue
+            if screened:  # the one image that can be within the cutoff
                 lo0 = hi0 = -int(np.rint(f[0, j] - fi0)) if p0 else 0
                 lo1 = hi1 = -int(np.rint(f[1, j] - fi1)) if p1 else 0
                 lo2 = hi2 = -int(np.rint(f[2, j] - fi2)) if p2 else 0
             else:
-                if not rc > 0.0:
-                    continue
                 lo0, hi0 = _shifts(f[0, j] - fi0, rc * h0 + t0, p0)
                 lo1, hi1 = _shifts(f[1, j] - fi1, rc * h1 + t1, p1)
                 lo2, hi2 = _shifts(f[2, j] - fi2, rc * h2 + t2, p2)
+            # a cheap reject before the square root: sqrt(d2) < rc implies
+            # d2 < rc^2 (1 + 1e-12) whatever the rounding
+            rc2 = rc * rc * (1.0 + 1e-12)
             for S0 in range(lo0, hi0 + 1):
                 for S1 in range(lo1, hi1 + 1):
                     for S2 in range(lo2, hi2 + 1):
                         Dx, Dy, Dz = ase_vector(pos, j, i, S0, S1, S2, full)
-                        # every image written, kept or not, the next one
-                        # written over it
+                        d2 = Dx * Dx + Dy * Dy + Dz * Dz
+                        # the screened partners are nearly all within the
+                        # cutoff: decided without a branch, the image
+                        # written and kept or written over
+                        if not screened and d2 >= rc2:
+                            continue
                         if m == store.shape[0]:
                             return start, i
                         store[m, 0] = i
@@ -292,28 +290,31 @@ def _half_pairs(pos, frame, pad, f, pbc, cutoff, self_interaction, i0, m, store,
                         store[m, 2] = S0
                         store[m, 3] = S1
                         store[m, 4] = S2
-                        m += ((np.sqrt(Dx * Dx + Dy * Dy + Dz * Dz) < rc)
+                        m += ((np.sqrt(d2) < rc)
                               & ((i != j) | (S0 != 0) | (S1 != 0) | (S2 != 0) | self_interaction))
     return m, n
 
 
 @njit(cache=True)
 def _screen(f, frame, pad, pbc, self_interaction, flags, cand, cptr):
-    """The partners that :func:`_half_pairs` tests, screened, where each
-    pair has one image to test (``_half_pairs``' ``one``): row ``i``'s
-    are ``cand[cptr[i]:cptr[i + 1]]``, the ``j >= i`` (``j > i`` without
-    ``self_interaction``) within the largest cutoff ``pad[3]`` (Å, padded
-    by 1e-12 relative) at their nearest image, in order.  ``f`` float64[6,
+    """The partners that :func:`_half_pairs` tests, screened, where no
+    periodic axis's shift interval at the largest cutoff spans half a
+    cell, so that a pair can be within its cutoff at its nearest image
+    (rint) only: row ``i``'s are ``cand[cptr[i]:cptr[i + 1]]``, the ``j >=
+    i`` (``j > i`` without ``self_interaction``) within the largest cutoff
+    ``pad[3]`` (Å, padded by 1e-12 relative) at their nearest image, in
+    order.  ``f`` float64[6,
     N]: :func:`_reach`'s fractional coordinates by axis, then the
     Cartesian ones (Å); ``flags`` int64[N] of scratch; ``cand`` int64[N (N
     + 1) / 2].
 
-    Each partner's test is a superset of ``_half_pairs``' own (the image
-    it tests, within the cutoff), computed for a whole row without a
-    branch and with the coordinates by axis, so that LLVM vectorises it
-    (4 pairs an instruction with AVX2).  In MD the tests decide at random:
-    their branches' mispredictions were half of a rebuild at 256 atoms,
-    and the screen takes the branches off every pair beyond the cutoff.
+    Each partner's test is a superset of ``_half_pairs``' own (the only
+    image it can keep, within the cutoff), computed for a whole row
+    without a branch and with the coordinates by axis, so that LLVM
+    vectorises it (4 pairs an instruction with AVX2).  In MD the tests
+    decide at random: their branches' mispredictions were half of a
+    rebuild at 256 atoms, and the screen takes every pair beyond the
+    cutoff off them.
     A kernel of its own, called only where it pays (:data:`SCREEN_ATOMS`):
     it compiles for about half a second."""
     n = f.shape[1]

@@ -290,12 +290,18 @@ def test_small_path_is_the_block_query_on_random_scenes(scene):
 @pytest.mark.parametrize("pbc", [(True, True, True), (True, False, True), (False, False, False)])
 @pytest.mark.parametrize("kind", ["scalar", "radii", "dict"])
 @pytest.mark.parametrize("self_interaction", [False, True])
-def test_one_image_rows_are_the_block_query(pbc, kind, self_interaction):
-    """Cutoffs under half of every cell height: each pair has one
-    candidate image, and the kernel tests it without branching on the data
-    (allpairs._half_pairs, its vectorised test at the largest cutoff, then
-    each candidate's own).  60 atoms of a sheared cell, some outside it,
-    atoms at the largest cutoff's distance and a duplicate position."""
+@pytest.mark.parametrize("screen", [False, True])
+def test_one_image_rows_are_the_block_query(pbc, kind, self_interaction, screen, monkeypatch):
+    """Cutoffs under half of every cell height: a pair can be within its
+    cutoff at its nearest image only, and from allpairs.SCREEN_ATOMS atoms
+    a vectorised screen at the largest cutoff leaves the partners that
+    allpairs._half_pairs tests (here from 0 atoms, or never).  60 atoms of
+    a sheared cell, some outside it, atoms at the largest cutoff's
+    distance and a duplicate position."""
+    calls = []
+    kernel = allpairs._screen
+    monkeypatch.setattr(allpairs, "SCREEN_ATOMS", 0 if screen else 10 ** 9)
+    monkeypatch.setattr(allpairs, "_screen", lambda *a: calls.append(1) or kernel(*a))
     rng = np.random.default_rng(11)
     cell = np.array([[14.0, 0.0, 0.0], [3.0, 13.0, 0.0], [-2.0, 1.5, 15.0]])
     frac = rng.uniform(-0.3, 1.3, (60, 3))
@@ -322,6 +328,7 @@ def test_one_image_rows_are_the_block_query(pbc, kind, self_interaction):
     i, j, _, _, S = large
     half = {(a, b, *s) for a, b, s in zip(i.tolist(), j.tolist(), S.tolist()) if a <= b}
     assert rows == half
+    assert len(calls) == (2 if screen else 0)  # half_store's and all_pairs'
 
 
 def test_mirror_entries_match_the_entry():
