@@ -47,6 +47,11 @@ atom indices in random order (a random permutation of the Atoms object),
 timestep 5 fs.  MD times are means over ``--repeats`` blocks of ``--steps``
 steps, so list rebuilds are paid in full (force calls: ``--calls`` each
 process) after a warm-up; JIT compilation is done before timing and reported.
+Without ``--steps`` a block has ``10^6 / N`` steps, 10 to 200 (ASE's
+LennardJones: 10): the warm-up ends at a list rebuild, and a window of a
+few dozen steps after it held one rebuild where the run rebuilds every
+~27 steps (256 atoms: 1 in 50 timed steps against 18 in 500), which
+understated a small system's step by 15-30 % (session 26).
 
 Usage::
 
@@ -302,7 +307,9 @@ def print_header(w, peers, env0, p, procs):
     print(f"- timing: {procs} processes per figure (ASE's LennardJones: 1), run interleaved; "
           f"force call = median of all {p['calls']} calls x processes after a ~{MOVE} Å move, "
           f"spread = p90/p10 of those calls; MD step = median over processes of each one's "
-          f"mean over {p['repeats']} blocks of {p['steps']} steps (rebuilds included) after "
+          f"mean over {p['repeats']} blocks of "
+          f"{'10^6/N steps (10 to 200; ASE 10)' if p.get('auto_steps') else p['steps']} "
+          f"steps (rebuilds included) after "
           f"{p['warm']} warm-up steps (ase-mlg: and until its pair list was rebuilt once)")
     wu = w.get("warmup", {})
     print("- JIT warm-up before any timing (compiles on first use, later runs load numba's "
@@ -317,6 +324,16 @@ def print_header(w, peers, env0, p, procs):
                                                    "are skipped"))
 
 
+def window(a, p, n, engine):
+    """The run's parameters for ``n`` atoms: blocks of ``--steps`` steps,
+    or of 10^6 / n (10 to 200; ASE's LennardJones 10), so that the timed
+    steps hold the list rebuilds of a long run and not just the one a
+    window of a few dozen steps after the warm-up's rebuild catches."""
+    if a.steps or a.quick or engine == "ase":
+        return p
+    return dict(p, steps=min(200, max(p["steps"], 1_000_000 // max(n, 1))))
+
+
 def speed_section(a, p, engines, env0, own):
     """Table 1; returns {natoms: {engine: summary}} for the breakdown."""
     jobs = []
@@ -325,7 +342,7 @@ def speed_section(a, p, engines, env0, own):
             if e == "ase" and n > a.ase_max:
                 continue
             th = 1 if e in ("ase", "asap3") else a.main_threads
-            jobs.append(((n, e), {"task": "speed", "engine": e, "params": p,
+            jobs.append(((n, e), {"task": "speed", "engine": e, "params": window(a, p, n, e),
                                   "scene": {"kind": "fcc", "natoms": n}},
                          th, 1 if e == "ase" else a.procs))
     res = {k: summary(v) for k, v in run_figures(jobs, a.timeout, env0).items()}
@@ -421,7 +438,8 @@ def npt_section(a, p, engines, env0):
 def threads_section(a, p, engines, env0, own):
     """Table 3; returns {threads: {engine: summary}} for the breakdown."""
     which = [e for e in ["mlg-exact", "mlg-w7", "lammps"] if e in engines]
-    jobs = [((k, e), {"task": "speed", "engine": e, "params": p,
+    jobs = [((k, e), {"task": "speed", "engine": e,
+                      "params": window(a, p, a.thread_size, e),
                       "scene": {"kind": "fcc", "natoms": a.thread_size}}, k, a.procs)
             for k in a.threads for e in which]
     res = {key: summary(v) for key, v in run_figures(jobs, a.timeout, env0).items()}
@@ -573,7 +591,8 @@ def main(argv=None):
     ap.add_argument("--memory-threads", default="2,8,32,64",
                     help="NUMBA_NUM_THREADS of the memory table (default 2,8,32,64)")
     ap.add_argument("--procs", type=int, default=3, help="processes per figure (default 3)")
-    ap.add_argument("--steps", type=int, help="MD steps per timed block (default 10)")
+    ap.add_argument("--steps", type=int,
+                    help="MD steps per timed block (default 10^6 / N, 10 to 200; ASE 10)")
     ap.add_argument("--repeats", type=int, help="timed blocks (default 5)")
     ap.add_argument("--calls", type=int, help="timed force calls per process (default 10)")
     ap.add_argument("--warm", type=int, default=5, help="untimed MD steps first")
@@ -603,7 +622,7 @@ def main(argv=None):
     engines = [e for e in ENGINES if e in a.engines.split(",")]
     p = {"steps": a.steps or (5 if q else 10), "repeats": a.repeats or (3 if q else 5),
          "calls": a.calls or (5 if q else 10), "warm": a.warm, "npt_steps": a.npt_steps,
-         "warm_sizes": [864] if q else [864, 37_044]}
+         "warm_sizes": [864] if q else [864, 37_044], "auto_steps": a.steps is None and not q}
 
     w = run_worker({"task": "warmup", "params": p}, a.main_threads, a.timeout, env0)
     peers = run_worker({"task": "peers"}, 1, a.timeout, env0)
