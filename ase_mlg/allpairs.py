@@ -88,13 +88,16 @@ __all__ = ["all_pairs", "half_store", "store_list", "within_reach", "MAX_WORK"]
 MAX_WORK = 6e5
 
 #: From this many atoms :func:`_half_pairs` takes the partners
-#: :func:`_screen` leaves (where each pair has one image to test).  The
-#: screen pays from about 100 atoms (``half_store``, one thread, AMD Zen 3:
-#: fcc Cu at 5 Å 22 -> 24 µs at 32 atoms, 101 -> 81 at 108, 543 -> 247 at
-#: 256, 2,041 -> 741 at 500; argon at 9.5 Å 574 -> 348 at 256), but its
-#: compilation (0.3-0.5 s, once per environment) takes some 20,000 calls
-#: of 108 atoms to repay, and about 1,500 of 256.
-SCREEN_ATOMS = 200
+#: :func:`_screen` leaves (where a pair can be within the cutoff at its
+#: nearest image only).  The screen saves more than it costs from about
+#: 100 atoms (``half_store``, one thread, AMD Zen 3: fcc Cu at 5 Å 22 -> 24
+#: µs at 32 atoms, 101 -> 81 at 108, 543 -> 247 at 256, 2,041 -> 741 at
+#: 500; argon at 9.5 Å 574 -> 348 at 256), and a rebuild of 500 argon
+#: atoms in MD 1.2 ms less; but its compilation (0.6 s, once per
+#: environment) takes some 2,500 rebuilds of 256 atoms to repay (70,000
+#: MD steps) against 500 of 500 atoms, and it would put a first force
+#: call on 256 atoms past issue 24's 5 s.
+SCREEN_ATOMS = 300
 
 # a periodic atom further than this many cells out goes to the large path:
 # the image interval's round-off grows with the shift (docs/design.md §6)
@@ -262,26 +265,24 @@ def _half_pairs(pos, frame, pad, f, pbc, cutoff, self_interaction, i0, m, store,
             rc = _pair_cutoff(cutoff, i, j)
             if not rc > 0.0:
                 continue
-            if screened:  # the one image that can be within the cutoff
-                lo0 = hi0 = -int(np.rint(f[0, j] - fi0)) if p0 else 0
-                lo1 = hi1 = -int(np.rint(f[1, j] - fi1)) if p1 else 0
-                lo2 = hi2 = -int(np.rint(f[2, j] - fi2)) if p2 else 0
-            else:
-                lo0, hi0 = _shifts(f[0, j] - fi0, rc * h0 + t0, p0)
-                lo1, hi1 = _shifts(f[1, j] - fi1, rc * h1 + t1, p1)
-                lo2, hi2 = _shifts(f[2, j] - fi2, rc * h2 + t2, p2)
+            lo0, hi0 = _shifts(f[0, j] - fi0, rc * h0 + t0, p0)
+            lo1, hi1 = _shifts(f[1, j] - fi1, rc * h1 + t1, p1)
+            lo2, hi2 = _shifts(f[2, j] - fi2, rc * h2 + t2, p2)
             # a cheap reject before the square root: sqrt(d2) < rc implies
             # d2 < rc^2 (1 + 1e-12) whatever the rounding
             rc2 = rc * rc * (1.0 + 1e-12)
             for S0 in range(lo0, hi0 + 1):
                 for S1 in range(lo1, hi1 + 1):
                     for S2 in range(lo2, hi2 + 1):
+                        if i == j and S0 == 0 and S1 == 0 and S2 == 0 \
+                                and not self_interaction:
+                            continue
                         Dx, Dy, Dz = ase_vector(pos, j, i, S0, S1, S2, full)
                         d2 = Dx * Dx + Dy * Dy + Dz * Dz
-                        # the screened partners are nearly all within the
-                        # cutoff: decided without a branch, the image
-                        # written and kept or written over
-                        if not screened and d2 >= rc2:
+                        if d2 >= rc2:
+                            continue
+                        d = np.sqrt(d2)
+                        if not d < rc:
                             continue
                         if m == store.shape[0]:
                             return start, i
@@ -290,8 +291,7 @@ def _half_pairs(pos, frame, pad, f, pbc, cutoff, self_interaction, i0, m, store,
                         store[m, 2] = S0
                         store[m, 3] = S1
                         store[m, 4] = S2
-                        m += ((np.sqrt(d2) < rc)
-                              & ((i != j) | (S0 != 0) | (S1 != 0) | (S2 != 0) | self_interaction))
+                        m += 1
     return m, n
 
 
@@ -499,12 +499,11 @@ def store_list(order, store, m, x, cell, split=None):
     x = np.ascontiguousarray(x, np.float64)
     cell = np.ascontiguousarray(cell, np.float64)
     split2 = -1.0 if split is None else float(split) ** 2
-    near = np.empty(m, np.bool_)
     kept = _store_rows(store, m, rank, x, cell, split2, box, rowptr, _NO_NBR, _NO_CODE,
-                       near, False)
+                       False)
     sdim, shifts, dtype = shift_codes(box[0], box[1])
     nbr, code = np.empty(kept, np.int32), np.empty(kept, dtype)
-    _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, near, True)
+    _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, True)
     slo = box[0]
     zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
     return PairList(order, rowptr, nbr, code, shifts, np.zeros((n, 3), np.int64), zero_code)
@@ -522,42 +521,24 @@ def _kept_in_half(store, k):
 
 
 @njit(cache=True)
-def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, near, fill):
+def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, fill):
     """:func:`store_list`'s two passes, one kernel (one compilation
     on a first call: two were 0.64 s).  Without ``fill``: each row's count
-    of kept pairs (``rowptr``, cumulated), their shifts' range (``box``,
-    widened in place) and whether each kept pair is within
-    ``sqrt(split2)`` (``near``, bool[m]; False throughout for ``split2 <
-    0``); returns the kept count.  With ``fill``: each atom's pairs (one
-    run of the store) into its row, the ``near`` ones first, each part in
-    the store's order, codes in the box ``box`` (its first row the lowest
-    shift); returns ``m``.  No branch depends on a pair's distance: in MD
-    the split decides at random, and those branches' mispredictions were a
-    third of these passes."""
+    of kept pairs (``rowptr``, cumulated) and their shifts' range
+    (``box``, widened in place); returns the kept count.  With ``fill``:
+    each atom's pairs (one run of the store) into its row, those within
+    ``sqrt(split2)`` first (``split2 < 0``: in the store's order), ``D =
+    x[j] - x[i] + S @ cell``, codes in the box ``box`` (its first row the
+    lowest shift)."""
     if not fill:
         kept = 0
-        # the box in registers: rowptr's writes could alias its array
-        lo0, lo1, lo2 = box[0, 0], box[0, 1], box[0, 2]
-        hi0, hi1, hi2 = box[1, 0], box[1, 1], box[1, 2]
-        k0 = 0
-        while k0 < m:
-            i = store[k0, 0]
-            count = 0
-            k = k0
-            while k < m and store[k, 0] == i:
-                keep = _kept_in_half(store, k)
-                near[k] = keep and split2 >= 0.0 and _within(store, k, x, cell, split2)
-                if keep:
-                    lo0, hi0 = min(lo0, store[k, 2]), max(hi0, store[k, 2])
-                    lo1, hi1 = min(lo1, store[k, 3]), max(hi1, store[k, 3])
-                    lo2, hi2 = min(lo2, store[k, 4]), max(hi2, store[k, 4])
-                    count += 1
-                k += 1
-            rowptr[rank[i] + 1] = count
-            kept += count
-            k0 = k
-        box[0, 0], box[0, 1], box[0, 2] = lo0, lo1, lo2
-        box[1, 0], box[1, 1], box[1, 2] = hi0, hi1, hi2
+        for k in range(m):
+            if _kept_in_half(store, k):
+                rowptr[rank[store[k, 0]] + 1] += 1
+                for a in range(3):
+                    box[0, a] = min(box[0, a], store[k, 2 + a])
+                    box[1, a] = max(box[1, a], store[k, 2 + a])
+                kept += 1
         for t in range(rowptr.shape[0] - 1):
             rowptr[t + 1] += rowptr[t]
         return kept
@@ -566,36 +547,27 @@ def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, near, f
     while k0 < m:
         i = store[k0, 0]
         k1 = k0
-        inner = 0
         while k1 < m and store[k1, 0] == i:
-            inner += near[k1]
             k1 += 1
-        # the near pairs from the row's start, the others after them
-        w_in = rowptr[rank[i]]
-        w_out = w_in + inner
-        for k in range(k0, k1):
-            if not _kept_in_half(store, k):
-                continue
-            j, S0, S1, S2 = store[k, 1], store[k, 2], store[k, 3], store[k, 4]
-            w = w_in if near[k] else w_out
-            w_in += near[k]
-            w_out += not near[k]
-            nbr[w] = rank[j]
-            code[w] = ((S0 - box[0, 0]) * d1 + S1 - box[0, 1]) * d2 + S2 - box[0, 2]
+        w = rowptr[rank[i]]
+        for part in range(2 if split2 >= 0.0 else 1):
+            for k in range(k0, k1):
+                if not _kept_in_half(store, k):
+                    continue
+                j, S0, S1, S2 = store[k, 1], store[k, 2], store[k, 3], store[k, 4]
+                if split2 >= 0.0:
+                    r2 = 0.0
+                    for c in range(3):
+                        D = (x[j, c] - x[i, c]) + (S0 * cell[0, c] + S1 * cell[1, c]
+                                                   + S2 * cell[2, c])
+                        r2 += D * D
+                    if (r2 > split2) != (part == 1):
+                        continue
+                nbr[w] = rank[j]
+                code[w] = ((S0 - box[0, 0]) * d1 + S1 - box[0, 1]) * d2 + S2 - box[0, 2]
+                w += 1
         k0 = k1
-    return m
-
-
-@njit(cache=True, no_cpython_wrapper=True)
-def _within(store, k, x, cell, split2):
-    """Whether store row ``k``'s pair is within ``sqrt(split2)`` (Å) at the
-    positions ``x`` in ``cell``."""
-    i, j, S0, S1, S2 = store[k, 0], store[k, 1], store[k, 2], store[k, 3], store[k, 4]
-    r2 = 0.0
-    for c in range(3):
-        D = (x[j, c] - x[i, c]) + (S0 * cell[0, c] + S1 * cell[1, c] + S2 * cell[2, c])
-        r2 += D * D
-    return not r2 > split2
+    return w
 
 
 def _arguments(cell, pbc, pair_cutoff, self_interaction):
