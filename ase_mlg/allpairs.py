@@ -13,7 +13,8 @@ once per cell: :func:`_frame_of`): the fractional coordinates
 that can bring them within the cutoff, each image tested
 (:func:`_half_pairs`; from :data:`SCREEN_ATOMS` atoms, where a cutoff
 spans less than half of every periodic cell height, as in MD's cells,
-only the partners a vectorised screen leaves: :func:`_screen`); the kept pairs at both atoms (:func:`_full`).
+only the partners a vectorised screen leaves: :func:`_screen`); the kept
+pairs at both atoms (:func:`_full`).
 Three kernels driven from Python, not one calling the others, because
 numba optimizes a kernel with its callees' code linked in: each level
 compiled the levels below once more (a first ``neighbor_list`` of 108
@@ -303,10 +304,9 @@ def _screen(f, frame, pad, pbc, self_interaction, flags, cand, cptr):
     (rint) only: row ``i``'s are ``cand[cptr[i]:cptr[i + 1]]``, the ``j >=
     i`` (``j > i`` without ``self_interaction``) within the largest cutoff
     ``pad[3]`` (Å, padded by 1e-12 relative) at their nearest image, in
-    order.  ``f`` float64[6,
-    N]: :func:`_reach`'s fractional coordinates by axis, then the
-    Cartesian ones (Å); ``flags`` int64[N] of scratch; ``cand`` int64[N (N
-    + 1) / 2].
+    order.  ``f`` float64[6, N]: :func:`_reach`'s fractional coordinates
+    by axis, then the Cartesian ones (Å); ``flags`` int64[N] of scratch;
+    ``cand`` int64[N (N + 1) / 2].
 
     Each partner's test is a superset of ``_half_pairs``' own (the only
     image it can keep, within the cutoff), computed for a whole row
@@ -314,14 +314,14 @@ def _screen(f, frame, pad, pbc, self_interaction, flags, cand, cptr):
     vectorises it (4 pairs an instruction with AVX2).  In MD the tests
     decide at random: their branches' mispredictions were half of a
     rebuild at 256 atoms, and the screen takes every pair beyond the
-    cutoff off them.
-    A kernel of its own, called only where it pays (:data:`SCREEN_ATOMS`):
-    it compiles for about half a second."""
+    cutoff off them.  A kernel of its own, called only where it pays
+    (:data:`SCREEN_ATOMS`): it compiles for about half a second."""
     n = f.shape[1]
     full = frame[0:3]
     q0, q1, q2 = 1.0 if pbc[0] else 0.0, 1.0 if pbc[1] else 0.0, 1.0 if pbc[2] else 0.0
     rcmax = pad[3]
-    r0, r1, r2 = rcmax * frame[6, 0] + pad[0], rcmax * frame[6, 1] + pad[1], rcmax * frame[6, 2] + pad[2]
+    r0, r1, r2 = (rcmax * frame[6, 0] + pad[0], rcmax * frame[6, 1] + pad[1],
+                  rcmax * frame[6, 2] + pad[2])
     rc2 = rcmax * rcmax * (1.0 + 1e-12)
     c00, c01, c02 = full[0, 0], full[0, 1], full[0, 2]
     c10, c11, c12 = full[1, 0], full[1, 1], full[1, 2]
@@ -458,17 +458,16 @@ def all_pairs(positions, cell, pbc, pair_cutoff, self_interaction=False,
 
 def half_store(positions, cell, pbc, pair_cutoff, self_interaction=False, room=None,
                max_work=MAX_WORK):
-    """The half list of a small system as the kernel writes it: ``(store,
-    m)``, ``store[:m]`` the rows ``(i, j, S0, S1, S2)`` (int64) of each pair
-    within the cutoff with ``i <= j``, ordered by (i, j, S), ``D = x[j] -
-    x[i] + S @ cell``; an atom's pairs with its own images come as both S
-    and -S (a half list keeps the lexicographically positive one:
-    :func:`store_list`).  None where the large
-    path must answer.  ``room``: the rows expected (the store grows in
-    Python when they are more: a growth cost a rebuild of 500 argon atoms
-    at 9.5 Å 0.9 ms).  Parameters, pairs and errors are those of
-    :func:`all_pairs`: its full list is this one's pairs and their mirrors.
-    The Verlet list's builds at small sizes
+    """The half list of a small system as the kernel writes it: ``(store, m)``,
+    ``store[:m]`` the rows ``(i, j, S0, S1, S2)`` (int64) of each pair within
+    the cutoff with ``i <= j``, ordered by (i, j, S), ``D = x[j] - x[i] + S @
+    cell``; an atom's pairs with its own images come as both S and -S (a half
+    list keeps the lexicographically positive one: :func:`store_list`). None
+    where the large path must answer. ``room``: the rows expected (the store
+    grows in Python when they are more: a growth cost a rebuild of 500 argon
+    atoms at 9.5 Å 0.9 ms). Parameters, pairs and errors are those of
+    :func:`all_pairs`: its full list is this one's pairs and their mirrors. The
+    Verlet list's builds at small sizes
     (:class:`~ase_mlg.verletlist.VerletList`)."""
     args = _arguments(cell, pbc, pair_cutoff, self_interaction)
     if args is None:
@@ -633,8 +632,9 @@ def _call(positions, args, max_work, room=None):
 
 def _screened(positions, frame, pad, f, pbc, self_interaction):
     """:func:`_screen`'s partners ``(cand, cptr)`` where it runs: at
-    :data:`SCREEN_ATOMS` atoms and more, where every pair has one image to
-    test; else two empty arrays (:func:`_half_pairs` tests every pair)."""
+    :data:`SCREEN_ATOMS` atoms and more, where no periodic axis's shift
+    interval at the largest cutoff spans half a cell; else two empty
+    arrays (:func:`_half_pairs` tests every pair)."""
     n = len(positions)
     h, rcmax = frame[6], pad[3]
     if n < SCREEN_ATOMS or not all(not p or 2.0 * (rcmax * h[a] + pad[a]) < 1.0
