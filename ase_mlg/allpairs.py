@@ -99,6 +99,14 @@ MAX_WORK = 6e5
 #: MD steps) against 500 of 500 atoms, and it would put a first force
 #: call on 256 atoms past issue 24's 5 s.
 SCREEN_ATOMS = 300
+#: From this many atoms a rebuild takes the screen (a list of these atoms
+#: kept across calls, :class:`~ase_mlg.verletlist.VerletList`: an MD run
+#: or a ``NeighborList`` updated, where its compilation is repaid): a
+#: first call never compiles it below :data:`SCREEN_ATOMS`.  A rebuild of
+#: 256 argon atoms in MD (9.5 Å, every 27 steps) 1.29 -> 0.84 ms, and 0.70
+#: with :func:`_store_rows`' flags; an MD step 0.147 -> 0.125 ms (one
+#: thread, AMD Zen 3).  The first rebuild compiles it (0.6 s).
+SCREEN_REBUILD_ATOMS = 100
 
 # a periodic atom further than this many cells out goes to the large path:
 # the image interval's round-off grows with the shift (docs/design.md §6)
@@ -463,12 +471,13 @@ def half_store(positions, cell, pbc, pair_cutoff, self_interaction=False, room=N
     the cutoff with ``i <= j``, ordered by (i, j, S), ``D = x[j] - x[i] + S @
     cell``; an atom's pairs with its own images come as both S and -S (a half
     list keeps the lexicographically positive one: :func:`store_list`). None
-    where the large path must answer. ``room``: the rows expected (the store
-    grows in Python when they are more: a growth cost a rebuild of 500 argon
-    atoms at 9.5 Å 0.9 ms). Parameters, pairs and errors are those of
-    :func:`all_pairs`: its full list is this one's pairs and their mirrors. The
-    Verlet list's builds at small sizes
-    (:class:`~ase_mlg.verletlist.VerletList`)."""
+    where the large path must answer. ``room``: the rows expected from the
+    last list of these atoms, given on a rebuild (the store grows in Python
+    when they are more: a growth cost a rebuild of 500 argon atoms at 9.5 Å
+    0.9 ms; a rebuild takes the screen from :data:`SCREEN_REBUILD_ATOMS`).
+    Parameters, pairs and errors are those of :func:`all_pairs`: its full
+    list is this one's pairs and their mirrors. The Verlet list's builds at
+    small sizes (:class:`~ase_mlg.verletlist.VerletList`)."""
     args = _arguments(cell, pbc, pair_cutoff, self_interaction)
     if args is None:
         return None
@@ -498,11 +507,12 @@ def store_list(order, store, m, x, cell, split=None):
     x = np.ascontiguousarray(x, np.float64)
     cell = np.ascontiguousarray(cell, np.float64)
     split2 = -1.0 if split is None else float(split) ** 2
+    flag = np.empty(m, np.int8)  # numba's np.empty compiles for 0.2 s
     kept = _store_rows(store, m, rank, x, cell, split2, box, rowptr, _NO_NBR, _NO_CODE,
-                       False)
+                       flag, False)
     sdim, shifts, dtype = shift_codes(box[0], box[1])
     nbr, code = np.empty(kept, np.int32), np.empty(kept, dtype)
-    _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, True)
+    _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, flag, True)
     slo = box[0]
     zero_code = int(((0 - slo[0]) * sdim[1] - slo[1]) * sdim[2] - slo[2])
     return PairList(order, rowptr, nbr, code, shifts, np.zeros((n, 3), np.int64), zero_code)
@@ -520,7 +530,7 @@ def _kept_in_half(store, k):
 
 
 @njit(cache=True)
-def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, fill):
+def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, flag, fill):
     """:func:`store_list`'s two passes, one kernel (one compilation
     on a first call: two were 0.64 s).  Without ``fill``: each row's count
     of kept pairs (``rowptr``, cumulated) and their shifts' range
@@ -528,7 +538,7 @@ def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, fill):
     each atom's pairs (one run of the store) into its row, those within
     ``sqrt(split2)`` first (``split2 < 0``: in the store's order), ``D =
     x[j] - x[i] + S @ cell``, codes in the box ``box`` (its first row the
-    lowest shift)."""
+    lowest shift); ``flag`` int8[m] of scratch."""
     if not fill:
         kept = 0
         for k in range(m):
@@ -542,31 +552,49 @@ def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, fill):
             rowptr[t + 1] += rowptr[t]
         return kept
     d1, d2 = box[1, 1] - box[0, 1] + 1, box[1, 2] - box[0, 2] + 1
-    k0 = 0
+    # each pair's place by a flag, not a branch (0: not in the half list,
+    # 1: within the split or no split, 2: beyond it): inside and outside
+    # the split come at random in MD, and the mispredictions were a third
+    # of a rebuild of 256 argon atoms (0.30 -> 0.25 ms)
+    split = split2 >= 0.0
+    for k in range(m):
+        flag[k] = _kept_in_half(store, k) * (1 + ((_r2(store, k, x, cell) > split2) & split))
+    k0 = w = 0
     while k0 < m:
         i = store[k0, 0]
         k1 = k0
+        inner = 0
         while k1 < m and store[k1, 0] == i:
+            inner += flag[k1] == 1
             k1 += 1
         w = rowptr[rank[i]]
-        for part in range(2 if split2 >= 0.0 else 1):
-            for k in range(k0, k1):
-                if not _kept_in_half(store, k):
-                    continue
-                j, S0, S1, S2 = store[k, 1], store[k, 2], store[k, 3], store[k, 4]
-                if split2 >= 0.0:
-                    r2 = 0.0
-                    for c in range(3):
-                        D = (x[j, c] - x[i, c]) + (S0 * cell[0, c] + S1 * cell[1, c]
-                                                   + S2 * cell[2, c])
-                        r2 += D * D
-                    if (r2 > split2) != (part == 1):
-                        continue
-                nbr[w] = rank[j]
-                code[w] = ((S0 - box[0, 0]) * d1 + S1 - box[0, 1]) * d2 + S2 - box[0, 2]
-                w += 1
+        out = w + inner
+        for k in range(k0, k1):
+            f = flag[k]
+            if f == 0:
+                continue
+            q = out if f == 2 else w
+            nbr[q] = rank[store[k, 1]]
+            code[q] = ((store[k, 2] - box[0, 0]) * d1 + store[k, 3] - box[0, 1]) * d2 \
+                + store[k, 4] - box[0, 2]
+            out += f == 2
+            w += f == 1
+        w = max(w, out)
         k0 = k1
     return w
+
+
+@njit(cache=True, no_cpython_wrapper=True)
+def _r2(store, k, x, cell):
+    """Squared length of store row ``k``'s ``D = x[j] - x[i] + S @ cell``
+    (ASE's operation order)."""
+    i, j = store[k, 0], store[k, 1]
+    S0, S1, S2 = store[k, 2], store[k, 3], store[k, 4]
+    r2 = 0.0
+    for c in range(3):
+        D = (x[j, c] - x[i, c]) + (S0 * cell[0, c] + S1 * cell[1, c] + S2 * cell[2, c])
+        r2 += D * D
+    return r2
 
 
 def _arguments(cell, pbc, pair_cutoff, self_interaction):
@@ -620,7 +648,8 @@ def _call(positions, args, max_work, room=None):
     # go) unless the caller knows better, doubled here, in Python, when a
     # row runs out (module doc: why no kernel drives the loop)
     store = np.empty((32 * n + 64 if room is None else int(room) + 64, 5), np.int64)
-    cand, cptr = _screened(positions, frame, pad, f, pbc, self_interaction)
+    cand, cptr = _screened(positions, frame, pad, f, pbc, self_interaction,
+                           SCREEN_ATOMS if room is None else SCREEN_REBUILD_ATOMS)
     m = i = 0
     while True:
         m, i = _half_pairs(positions, frame, pad, f, pbc, cutoff, self_interaction, i, m,
@@ -630,14 +659,16 @@ def _call(positions, args, max_work, room=None):
         store = np.concatenate((store, np.empty_like(store)))
 
 
-def _screened(positions, frame, pad, f, pbc, self_interaction):
+def _screened(positions, frame, pad, f, pbc, self_interaction, screen_from):
     """:func:`_screen`'s partners ``(cand, cptr)`` where it runs: at
-    :data:`SCREEN_ATOMS` atoms and more, where no periodic axis's shift
-    interval at the largest cutoff spans half a cell; else two empty
-    arrays (:func:`_half_pairs` tests every pair)."""
+    ``screen_from`` atoms and more (:data:`SCREEN_ATOMS`, or
+    :data:`SCREEN_REBUILD_ATOMS` where the caller knows the room: it
+    rebuilds a list it kept), where no periodic axis's shift interval at
+    the largest cutoff spans half a cell; else two empty arrays
+    (:func:`_half_pairs` tests every pair)."""
     n = len(positions)
     h, rcmax = frame[6], pad[3]
-    if n < SCREEN_ATOMS or not all(not p or 2.0 * (rcmax * h[a] + pad[a]) < 1.0
+    if n < screen_from or not all(not p or 2.0 * (rcmax * h[a] + pad[a]) < 1.0
                                    for a, p in enumerate(pbc.tolist())):
         return _EMPTY_I, _EMPTY_I
     fx = np.concatenate((f, positions.T))

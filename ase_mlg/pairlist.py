@@ -12,6 +12,7 @@ called by :mod:`ase_mlg.potentials`) sums over the rows, and
 or a half list oriented by a rule on the cell shifts (ASE's two halves).
 """
 
+import functools
 from collections import namedtuple
 
 import numba
@@ -664,8 +665,18 @@ _NO_ORIENT = Orientation(_E_2I, np.eye(3, dtype=np.int64))
 
 def shift_codes(slo, shi):
     """Code table for integer shifts in the box [slo, shi]: dims, the
-    shift of every code, the code dtype (one byte when it fits)."""
-    sdim = (shi - slo + 1).astype(np.int64)
+    shift of every code, the code dtype (one byte when it fits).  Copies
+    of a table kept per box (writable: numba compiles read-only arrays
+    apart): a small system's rebuild made it anew each time, 27 µs of a
+    0.8 ms rebuild of 256 argon atoms, against 2 for the copies."""
+    sdim, shifts, dtype = _shift_codes(tuple(int(v) for v in slo),
+                                       tuple(int(v) for v in shi))
+    return sdim.copy(), shifts.copy(), dtype
+
+
+@functools.lru_cache(maxsize=64)
+def _shift_codes(slo, shi):
+    sdim = np.array(shi, np.int64) - slo + 1
     k = np.indices(sdim).reshape(3, -1).T
     shifts = np.ascontiguousarray(k + slo, dtype=np.int64)
     dtype = np.uint8 if len(shifts) <= 256 else np.int32

@@ -331,6 +331,47 @@ def test_one_image_rows_are_the_block_query(pbc, kind, self_interaction, screen,
     assert len(calls) == (2 if screen else 0)  # half_store's and all_pairs'
 
 
+def test_a_rebuild_takes_the_screen_and_keeps_the_list(monkeypatch):
+    """A VerletList's rebuild (the last list of these atoms sizes its
+    store) takes the screen from allpairs.SCREEN_REBUILD_ATOMS atoms, a
+    first build only from allpairs.SCREEN_ATOMS (it would compile there
+    for nothing).  256 atoms between the two: the rebuilt list is a fresh
+    build's of the same positions, row for row, and each row holds the
+    brute-force pairs within the list radius, those within the cutoff
+    first (the store's flag placement)."""
+    from ase_mlg.verletlist import VerletList
+    assert allpairs.SCREEN_REBUILD_ATOMS <= 256 < allpairs.SCREEN_ATOMS
+    calls = []
+    kernel = allpairs._screen
+    monkeypatch.setattr(allpairs, "_screen", lambda *a: calls.append(1) or kernel(*a))
+    rng = np.random.default_rng(5)
+    atoms = bulk("Ar", "fcc", a=5.3, cubic=True).repeat(4)
+    atoms.positions += rng.normal(scale=0.05, size=atoms.positions.shape)
+    cell, pbc = atoms.cell.array, atoms.pbc
+    kept = VerletList(8.5, skin=1.0)
+    kept.build(atoms.positions, cell, pbc)
+    x = atoms.positions + rng.normal(scale=0.4, size=atoms.positions.shape)
+    fresh = VerletList(8.5, skin=1.0)
+    fresh.build(x, cell, pbc)
+    assert calls == []
+    kept.rebuild(x, cell, pbc)
+    assert calls == [1]
+    a, b = kept.pairs, fresh.pairs
+    for name in ("order", "rowptr", "nbr", "code", "shifts", "images"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    brute = np.array(sorted((i, j, *S) for i, j, S in naive.pairs(x, cell, pbc, 9.5)
+                            if i < j or (i == j and np.sign(S) @ [4, 2, 1] > 0)))
+    assert np.array_equal(naive.atom_pairs(a), brute)
+    t = np.repeat(np.arange(a.natoms), np.diff(a.rowptr))
+    u = a.nbr.astype(np.int64)
+    D = x[a.order[u]] - x[a.order[t]] + (a.shifts[a.code] + a.images[u] - a.images[t]) @ cell
+    inside = np.linalg.norm(D, axis=1) <= 8.5
+    assert 0 < inside.sum() < len(inside)
+    for r in range(a.natoms):  # within the cutoff first in every row
+        row = inside[a.rowptr[r]:a.rowptr[r + 1]]
+        assert not (~row[:-1] & row[1:]).any(), r
+
+
 def test_mirror_entries_match_the_entry():
     """Each pair at both atoms: (j, i, -S) beside (i, j, S), same d."""
     atoms = _triclinic(pbc=(True, False, True))
