@@ -134,9 +134,10 @@ def _frame(cell, pbc):
     """The completed cell, its inverse and inverse heights, as
     :class:`~ase_mlg.geometry.Box` completes and checks a cell: a float64
     (10, 3) array that nothing writes after this (a writeable array, so
-    that the kernels share one compiled type with the large path's), or None where Box must decide (a non-finite
-    cell, a missing vector (but for no cell at all and no pbc, completed to
-    the identity, as Box does), a volume Box could refuse).
+    that the kernels share one compiled type with the large path's), or
+    None where Box must decide (a non-finite cell, a missing vector (but for
+    no cell at all and no pbc, completed to the identity, as Box does), a
+    volume Box could refuse).
 
     ``frame[0:3]`` is the cell the shifts refer to (Box's ``full``),
     ``frame[3:6]`` its inverse ``B``, ``frame[6]`` the inverse heights ``1
