@@ -533,34 +533,38 @@ def _kept_in_half(store, k):
 @njit(cache=True)
 def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, flag, fill):
     """:func:`store_list`'s two passes, one kernel (one compilation
-    on a first call: two were 0.64 s).  Without ``fill``: each row's count
-    of kept pairs (``rowptr``, cumulated) and their shifts' range
-    (``box``, widened in place); returns the kept count.  With ``fill``:
-    each atom's pairs (one run of the store) into its row, those within
-    ``sqrt(split2)`` first (``split2 < 0``: in the store's order), ``D =
-    x[j] - x[i] + S @ cell``, codes in the box ``box`` (its first row the
-    lowest shift); ``flag`` int8[m] of scratch."""
+    on a first call: two were 0.64 s).  Without ``fill``: each pair's
+    ``flag`` (int8[m]: 0 not in the half list, 1 kept within
+    ``sqrt(split2)`` or with no split (``split2 < 0``), 2 kept beyond it,
+    ``D = x[j] - x[i] + S @ cell``), each row's count of kept pairs
+    (``rowptr``, cumulated) and their shifts' range (``box``, widened in
+    place); returns the kept count.  With ``fill`` (after that pass, on
+    its flags): each atom's pairs (one run of the store) into its row,
+    flag 1 first, each part in the store's order, codes in the box ``box``
+    (its first row the lowest shift); returns the kept count."""
     if not fill:
+        split = split2 >= 0.0
         kept = 0
         for k in range(m):
             if _kept_in_half(store, k):
+                Dx, Dy, Dz = ase_vector(x, store[k, 1], store[k, 0], store[k, 2],
+                                        store[k, 3], store[k, 4], cell)
+                flag[k] = 1 + ((Dx * Dx + Dy * Dy + Dz * Dz > split2) & split)
                 rowptr[rank[store[k, 0]] + 1] += 1
                 for a in range(3):
                     box[0, a] = min(box[0, a], store[k, 2 + a])
                     box[1, a] = max(box[1, a], store[k, 2 + a])
                 kept += 1
+            else:
+                flag[k] = 0
         for t in range(rowptr.shape[0] - 1):
             rowptr[t + 1] += rowptr[t]
         return kept
     d1, d2 = box[1, 1] - box[0, 1] + 1, box[1, 2] - box[0, 2] + 1
-    # each pair's place by a flag, not a branch (0: not in the half list,
-    # 1: within the split or no split, 2: beyond it): inside and outside
-    # the split come at random in MD, and the mispredictions were a third
-    # of a rebuild of 256 argon atoms (0.30 -> 0.25 ms)
-    split = split2 >= 0.0
-    for k in range(m):
-        flag[k] = _kept_in_half(store, k) * (1 + ((_r2(store, k, x, cell) > split2) & split))
-    k0 = w = 0
+    # each pair's place by its flag, not a branch on its distance: inside
+    # and outside the split come at random in MD, and the mispredictions
+    # were a third of a rebuild of 256 argon atoms (0.30 -> 0.25 ms)
+    k0 = 0
     while k0 < m:
         i = store[k0, 0]
         k1 = k0
@@ -580,22 +584,8 @@ def _store_rows(store, m, rank, x, cell, split2, box, rowptr, nbr, code, flag, f
                 + store[k, 4] - box[0, 2]
             out += f == 2
             w += f == 1
-        w = max(w, out)
         k0 = k1
-    return w
-
-
-@njit(cache=True, no_cpython_wrapper=True)
-def _r2(store, k, x, cell):
-    """Squared length of store row ``k``'s ``D = x[j] - x[i] + S @ cell``
-    (ASE's operation order)."""
-    i, j = store[k, 0], store[k, 1]
-    S0, S1, S2 = store[k, 2], store[k, 3], store[k, 4]
-    r2 = 0.0
-    for c in range(3):
-        D = (x[j, c] - x[i, c]) + (S0 * cell[0, c] + S1 * cell[1, c] + S2 * cell[2, c])
-        r2 += D * D
-    return r2
+    return rowptr[-1]
 
 
 def _arguments(cell, pbc, pair_cutoff, self_interaction):
